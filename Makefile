@@ -1,0 +1,39 @@
+# hydropump: `make demo` runs the main job, `make test` runs lint and the tests.
+# Both bootstrap .venv on first use (Python 3.11, everything pinned in requirements.txt).
+
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.hydropump-installed
+PKGS := hydropump_sim hydropump_ctrl
+SETUP_FILES := requirements.txt $(foreach p,$(PKGS),$(p)/setup.py $(p)/package.xml)
+
+export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
+
+.PHONY: all demo test lint bench clean
+
+all: demo
+
+$(STAMP): $(SETUP_FILES)
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip==25.3
+	$(BIN)/python -m pip install --quiet -r requirements.txt
+	$(BIN)/python -m pip install --quiet --no-build-isolation --no-deps \
+		$(foreach p,$(PKGS),-e $(p))
+	touch $@
+
+demo: $(STAMP)
+	$(BIN)/hydropump analyze
+
+lint: $(STAMP)
+	$(BIN)/ruff check .
+
+# pytest exits with 5 when it collects no tests; that is not a failure of the suite.
+test: lint
+	$(BIN)/python -m pytest; rc=$$?; [ $$rc -eq 5 ] && rc=0; exit $$rc
+
+bench: $(STAMP)
+	$(BIN)/python bench/run_all.py
+
+clean:
+	rm -rf $(VENV) build install log out

@@ -1,0 +1,1 @@
+"""hydropump_ctrl: control and identification for the hydropump plant (no ROS)."""

@@ -1,0 +1,470 @@
+"""Typed, range-checked plant parameters (one schema, one loader).
+
+The schema is dataclass field metadata: every parameter has a unit, a description and an
+accepted range. ``config/pump.yaml`` holds the values. Loading validates everything at once and
+raises :class:`ParamError` with one line per bad value, so that a user sees every mistake in one
+go and never a traceback.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping
+import dataclasses
+from dataclasses import dataclass, field, fields
+import difflib
+import math
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+
+class ParamError(ValueError):
+    """Invalid parameters: ``lines`` holds one human-readable line per problem."""
+
+    def __init__(self, lines: list[str], source: str | None = None):
+        self.lines = list(lines)
+        self.source = source
+        head = f'invalid parameters in {source}' if source else 'invalid parameters'
+        super().__init__(head + ':\n' + '\n'.join('  ' + ln for ln in self.lines))
+
+
+def spec(unit: str, desc: str, lo: float | None = None, hi: float | None = None, *,
+         choices: tuple[str, ...] | None = None, default: Any = dataclasses.MISSING,
+         live: bool = False):
+    """Field metadata: unit, description, accepted range or choices, optional default.
+
+    A field with a default is optional in a parameter file; the reference keys have none, so a
+    missing one is reported. ``live`` marks parameters that may change while a simulation runs
+    (operating-point inputs); all others are read-only in the ROS nodes.
+    """
+    meta = {'unit': unit, 'desc': desc, 'range': (lo, hi), 'choices': choices, 'live': live}
+    if default is dataclasses.MISSING:
+        return field(metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+@dataclass(frozen=True)
+class Fluid:
+    rho: float = spec('kg/m^3', 'oil density', 600.0, 1200.0)
+    beta: float = spec('Pa', 'effective bulk modulus of the oil (1/beta is the compressibility)',
+                       1.0e8, 3.0e9)
+    nu: float = spec('m^2/s', 'kinematic viscosity (documents dp_cr; not in the equations)',
+                     1.0e-7, 1.0e-3)
+    alpha_air: float = spec('-', 'entrained air volume fraction at p_atm; 0 = pure liquid',
+                            0.0, 0.2)
+    p_atm: float = spec('Pa', 'atmospheric pressure (absolute), for the air and floor models',
+                        5.0e4, 1.2e5)
+    P_T: float = spec('Pa', 'tank pressure (gauge) at the pilot valve outlet edge', 0.0, 5.0e6)
+    pressure_floor: bool = spec('-', 'stop pressures at absolute zero (cavitation floor)',
+                                default=True)
+    dp_floor: float = spec('Pa', 'width of the smooth pressure floor above absolute zero',
+                           1.0e2, 1.0e5, default=1.0e4)
+
+
+@dataclass(frozen=True)
+class Pump:
+    V_p: float = spec('m^3/rev', 'maximum displacement', 1.0e-6, 1.0e-3)
+    f_p: float = spec('Hz', 'shaft frequency in rev/s (eq. 8)', 1.0, 100.0, live=True)
+    flow_map: str = spec('-', 'eq. 8 reading: paper (literal) or consistent (full stroke)',
+                         choices=('paper', 'consistent'))
+    x_a_max: float = spec('m', 'stroke normaliser of eq. 8', 1.0e-3, 0.1)
+    l_d: float = spec('m', 'actuator arm of eq. 5 (information only)', 1.0e-3, 1.0)
+    disp_clip: bool = spec('-', 'clip the displacement fraction to [0, 1]')
+
+
+@dataclass(frozen=True)
+class Spool:
+    m_c: float = spec('kg', 'spool and armature moving mass (eq. 1)', 1.0e-4, 1.0)
+    K_c: float = spec('N/m', 'spool bias spring stiffness (eq. 1)', 1.0, 1.0e6)
+    K_a: float = spec('N/m', 'feedback spring stiffness between spool and actuator', 10.0, 1.0e6)
+    phi_s: float = spec('N/A', 'solenoid force constant (eq. 1)', 1.0, 1.0e4)
+    I_max: float = spec('A', 'half-width of the regulating current range (eq. 2)', 0.01, 5.0)
+    I_min: float = spec('A', 'start of the regulating current range (eq. 2)', 1.0e-3, 5.0)
+    x_c_max: float = spec('m', 'spool stroke limit', 1.0e-4, 0.02)
+    c_c: float = spec('N s/m', 'viscous part of A_c', 0.0, 1.0e4)
+    F_coul_c: float = spec('N', 'Coulomb part of A_c; 0 = no friction', 0.0, 100.0)
+    v_eps_c: float = spec('m/s', 'tanh smoothing velocity of the Coulomb term', 1.0e-7, 1.0)
+    k_stop_c: float = spec('N/m', 'spool end-stop stiffness; 0 = no end stop', 0.0, 1.0e10)
+    c_stop_c: float = spec('N s/m', 'spool end-stop damping', 0.0, 1.0e6)
+
+
+@dataclass(frozen=True)
+class Actuator:
+    d_a: float = spec('m', 'control-piston diameter (S_a = pi d_a^2 / 4)', 1.0e-3, 0.2)
+    S_a: float = spec('m^2', 'control-piston active area (eq. 3)', 1.0e-6, 1.0e-2)
+    V_a0: float = spec('m^3', 'actuator chamber volume at x_a = 0', 1.0e-7, 1.0e-2)
+    V_a_min: float = spec('m^3', 'lower bound of the actuator volume', 1.0e-8, 1.0e-2)
+    P_a_bar: float = spec('Pa', 'actuator pressure at the bias-spring preload (eq. 7)',
+                          1.0e5, 2.0e7)
+    mu_a: float = spec('m^3/(s m Pa^0.5)', 'pilot orifice coefficient (eq. 4)', 1.0e-9, 1.0e-3)
+    h_a: float = spec('m', 'equivalent orifice height, mu_a = h_a sqrt(2/rho) (eq. 4)',
+                      1.0e-7, 1.0e-1)
+    dp_cr_a: float = spec('Pa', 'laminar/turbulent transition of the pilot orifice; 0 = sqrt',
+                          0.0, 1.0e6)
+    G_leak_a: float = spec('m^3/(s Pa)', 'laminar leakage actuator to tank; 0 = none',
+                           0.0, 1.0e-10)
+
+
+@dataclass(frozen=True)
+class Plate:
+    m_a: float = spec('kg', 'plate and control-piston equivalent mass (eq. 6)', 1.0e-3, 100.0)
+    K_b: float = spec('N/m', 'bias (swash-plate return) spring stiffness', 1.0, 1.0e8)
+    S_d: float = spec('m^2', 'equivalent area of line pressure on the plate', 0.0, 1.0e-2)
+    c_a: float = spec('N s/m', 'viscous part of A_a', 0.0, 1.0e6)
+    F_coul_a: float = spec('N', 'Coulomb part of A_a; 0 = no friction', 0.0, 1.0e4)
+    v_eps_a: float = spec('m/s', 'tanh smoothing velocity of the Coulomb term', 1.0e-7, 1.0)
+    k_stop_a: float = spec('N/m', 'swash-plate end-stop stiffness; 0 = no end stop', 0.0, 1.0e10)
+    c_stop_a: float = spec('N s/m', 'swash-plate end-stop damping', 0.0, 1.0e7)
+
+
+@dataclass(frozen=True)
+class Line:
+    V_l: float = spec('m^3', 'line (pump outlet and hose) volume (eq. 9)', 1.0e-6, 0.1)
+    P_l_bar: float = spec('Pa', 'line pressure at the bias-spring preload (eq. 7)', 1.0e5, 4.5e7)
+    # A load pressure below 0.1 bar gauge is almost always a value typed in bar.
+    P_u: float = spec('Pa', 'load pressure downstream of the load orifice (eq. 9)',
+                      1.0e4, 4.5e7, live=True)
+    xi_u: float = spec('-', 'load aperture degree (eq. 9)', 0.0, 1.0, live=True)
+    gamma_u: float = spec('-', 'load law exponent: 2 turbulent, 1 laminar (eq. 9)', 1.0, 2.0)
+    mu_u: float = spec('m^3/(s Pa^(1/gamma_u))', 'load orifice coefficient (eq. 9)',
+                       1.0e-12, 1.0e-2)
+    dp_cr_u: float = spec('Pa', 'laminar/turbulent transition of the load orifice; 0 = root',
+                          0.0, 1.0e6)
+
+
+@dataclass(frozen=True)
+class Relief:
+    enabled: bool = spec('-', 'relief valve of Fig. 1 on the line')
+    p_crack: float = spec('Pa', 'cracking pressure (gauge)', 1.0e6, 5.0e7)
+    p_full: float = spec('Pa', 'fully-open pressure (gauge)', 1.0e6, 5.0e7)
+    q_full: float = spec('m^3/s', 'flow at p_full', 1.0e-6, 0.1)
+
+
+@dataclass(frozen=True)
+class Input:
+    dither_amp: float = spec('A', 'sinusoidal dither amplitude on the solenoid current', 0.0, 1.0)
+    dither_freq: float = spec('Hz', 'dither frequency', 1.0, 5000.0)
+    tau_s: float = spec('s', 'first-order solenoid current lag; 0 = ideal current source',
+                        0.0, 0.1, default=0.0)
+
+
+GROUPS = {
+    'fluid': Fluid, 'pump': Pump, 'spool': Spool, 'actuator': Actuator, 'plate': Plate,
+    'line': Line, 'relief': Relief, 'input': Input,
+}
+
+# Hints for values typed in a common non-SI unit: (unit, factor to SI, name).
+_UNIT_HINTS = {
+    'Pa': (1.0e5, 'bar'),
+    'm': (1.0e-3, 'mm'),
+    'm^3/s': (1.0 / 60000.0, 'L/min'),
+    'Hz': (1.0 / 60.0, 'rpm'),
+    'm^3': (1.0e-6, 'cm^3'),
+    'm^3/rev': (1.0e-6, 'cm^3/rev'),
+}
+
+# Relative tolerance for the redundant pairs and design condition D1.
+REL_TOL = 1.0e-3
+
+
+@dataclass(frozen=True)
+class Params:
+    """The validated plant parameter set, SI units, gauge pressures (tank = 0 Pa)."""
+
+    fluid: Fluid
+    pump: Pump
+    spool: Spool
+    actuator: Actuator
+    plate: Plate
+    line: Line
+    relief: Relief
+    input: Input
+
+    # Derived quantities, named as in the paper.
+    @property
+    def Q_max(self) -> float:
+        """Full-displacement flow ``V_p f_p`` [m^3/s] at the nominal shaft speed."""
+        return self.pump.V_p * self.pump.f_p
+
+    @property
+    def stroke_scale(self) -> float:
+        """``x_a`` change per unit displacement fraction [m] (eq. 8 and its I1 reading)."""
+        return self.pump.x_a_max if self.pump.flow_map == 'paper' else 2.0 * self.pump.x_a_max
+
+    @property
+    def x_a_stop(self) -> float:
+        """Physical stroke limit of the plate [m]: 0..100 % displacement (model_notes I1)."""
+        return 0.5 * self.stroke_scale
+
+    @property
+    def b_p(self) -> float:
+        """``b_p = V_p f_p / x_a_max`` [m^2/s] of eq. 13 (halved for the consistent map)."""
+        return self.Q_max / self.stroke_scale
+
+    @property
+    def i_full(self) -> float:
+        """Current variation ``i_s`` [A] from 50 % to 100 % displacement."""
+        return self.spool.K_a * self.x_a_stop / self.spool.phi_s
+
+    @property
+    def I_nominal(self) -> float:
+        """Absolute current at 50 % displacement, ``I_min + I_max`` [A] (eq. 2, i_s = 0)."""
+        return self.spool.I_min + self.spool.I_max
+
+    @property
+    def current_range(self) -> tuple[float, float]:
+        """Absolute current [A] for 0 % and 100 % displacement."""
+        return (self.I_nominal - self.i_full, self.I_nominal + self.i_full)
+
+    @property
+    def I_limits(self) -> tuple[float, float]:
+        """Absolute current range of eq. 2 [A]: ``[I_min, I_min + 2 I_max]``."""
+        return (self.spool.I_min, self.spool.I_min + 2.0 * self.spool.I_max)
+
+    def replace(self, values: Mapping[str, Any]) -> Params:
+        """Return a re-validated copy with dotted keys (``'line.xi_u'``) replaced."""
+        data = self.flat()
+        data.update(values)
+        return params_from_dict(data)
+
+    def to_dict(self) -> dict[str, dict[str, Any]]:
+        """Nested ``{group: {name: value}}`` dictionary."""
+        return {g: dataclasses.asdict(getattr(self, g)) for g in GROUPS}
+
+    def flat(self) -> dict[str, Any]:
+        """Flat ``{'group.name': value}`` dictionary (ROS parameter names)."""
+        return {f'{g}.{k}': v for g, d in self.to_dict().items() for k, v in d.items()}
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One schema entry, as the ROS parameter bridge and the docs need it."""
+
+    name: str
+    type: type
+    unit: str
+    desc: str
+    range: tuple[float | None, float | None]
+    choices: tuple[str, ...] | None
+    live: bool
+    required: bool
+
+
+def iter_specs() -> Iterator[ParamSpec]:
+    """Yield every parameter of the schema in file order."""
+    for gname, cls in GROUPS.items():
+        for f in fields(cls):
+            m = f.metadata
+            ftype = {'float': float, 'bool': bool, 'str': str}[f.type if isinstance(f.type, str)
+                                                               else f.type.__name__]
+            yield ParamSpec(f'{gname}.{f.name}', ftype, m['unit'], m['desc'], m['range'],
+                            m['choices'], m['live'], f.default is dataclasses.MISSING)
+
+
+def _fmt(v: float) -> str:
+    return f'{v:.6g}'
+
+
+def _range_text(s: ParamSpec) -> str:
+    lo, hi = s.range
+    return f'[{_fmt(lo)}, {_fmt(hi)}] {s.unit}'
+
+
+def _unknown_key_line(key: str) -> str:
+    names = [s.name for s in iter_specs()]
+    close = difflib.get_close_matches(key, names, n=1, cutoff=0.6)
+    if not close:
+        # Compare within the same group name too (e.g. 'spool.mc' vs 'spool.m_c').
+        group, _, name = key.partition('.')
+        close = difflib.get_close_matches(name, [n.split('.')[1] for n in names
+                                                 if n.startswith(group + '.')], n=1)
+        close = [f'{group}.{c}' for c in close]
+    hint = f' (did you mean {close[0]}?)' if close else ''
+    return f'{key}: unknown parameter{hint}'
+
+
+def check_value(s: ParamSpec, value: Any) -> tuple[Any, str | None]:
+    """Coerce and check one value; return ``(value, None)`` or ``(None, error line)``."""
+    if s.type is bool:
+        if isinstance(value, bool):
+            return value, None
+        return None, f'{s.name} = {value!r}: expected true or false ({s.desc})'
+    if s.type is str:
+        if isinstance(value, str) and (s.choices is None or value in s.choices):
+            return value, None
+        return None, f'{s.name} = {value!r}: expected one of {", ".join(s.choices or ())}'
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        hint = ''
+        if isinstance(value, str):
+            try:
+                float(value)
+                hint = (' (YAML read it as text: write a dot and a signed exponent, '
+                        'e.g. 1.5e+9)')
+            except ValueError:
+                pass
+        return None, (f'{s.name} = {value!r}: not a number{hint}; expected {s.unit} '
+                      f'in {_range_text(s)}')
+    value = float(value)
+    lo, hi = s.range
+    if not math.isfinite(value):
+        return None, f'{s.name} = {value!r}: not finite; expected {s.unit} in {_range_text(s)}'
+    if (lo is not None and value < lo) or (hi is not None and value > hi):
+        hint = ''
+        if s.unit in _UNIT_HINTS and value > 0:
+            factor, uname = _UNIT_HINTS[s.unit]
+            conv = value * factor
+            if (lo is None or conv >= lo) and (hi is None or conv <= hi):
+                hint = (f' (looks like a value in {uname}: {_fmt(value)} {uname} = '
+                        f'{_fmt(conv)} {s.unit})')
+        return None, (f'{s.name} = {_fmt(value)} {s.unit}: outside the accepted range '
+                      f'{_range_text(s)} ({s.desc}){hint}')
+    return value, None
+
+
+def _flatten(data: Mapping[str, Any], errors: list[str]) -> dict[str, Any]:
+    """Accept nested groups or dotted keys; return ``{'group.name': value}``."""
+    flat: dict[str, Any] = {}
+    for key, val in data.items():
+        key = str(key)
+        if isinstance(val, Mapping):
+            for sub, v in val.items():
+                if isinstance(v, Mapping):
+                    errors.append(f'{key}.{sub}: unexpected nested group')
+                else:
+                    flat[f'{key}.{sub}'] = v
+        elif '.' in key:
+            flat[key] = val
+        else:
+            errors.append(f'{key}: expected a parameter group ({", ".join(GROUPS)})')
+    return flat
+
+
+def _cross_checks(p: Params) -> list[str]:
+    """Relations between parameters that single ranges cannot express."""
+    out = []
+    sp, ac = p.spool, p.actuator
+
+    def rel(a: float, b: float) -> float:
+        return abs(a - b) / max(abs(a), abs(b), 1e-300)
+
+    lhs, rhs = sp.phi_s * sp.I_max, sp.K_a * p.pump.x_a_max
+    if rel(lhs, rhs) > REL_TOL:
+        out.append(f'design condition D1 violated: phi_s*I_max = {_fmt(sp.phi_s)} N/A * '
+                   f'{_fmt(sp.I_max)} A = {_fmt(lhs)} N but K_a*x_a_max = {_fmt(sp.K_a)} N/m * '
+                   f'{_fmt(p.pump.x_a_max)} m = {_fmt(rhs)} N (must be equal within '
+                   f'{REL_TOL:.0e}, else eq. 11 does not hold)')
+    s_a = math.pi * ac.d_a ** 2 / 4.0
+    if rel(ac.S_a, s_a) > REL_TOL:
+        out.append(f'actuator.S_a = {_fmt(ac.S_a)} m^2 disagrees with pi*d_a^2/4 = {_fmt(s_a)} '
+                   f'm^2 (d_a = {_fmt(ac.d_a)} m): change both')
+    mu = ac.h_a * math.sqrt(2.0 / p.fluid.rho)
+    if rel(ac.mu_a, mu) > REL_TOL:
+        out.append(f'actuator.mu_a = {_fmt(ac.mu_a)} disagrees with h_a*sqrt(2/rho) = {_fmt(mu)}'
+                   f' (eq. 4): change both')
+    if p.relief.p_full <= p.relief.p_crack:
+        out.append(f'relief.p_full = {_fmt(p.relief.p_full)} Pa must exceed relief.p_crack = '
+                   f'{_fmt(p.relief.p_crack)} Pa')
+    if ac.P_a_bar >= p.line.P_l_bar:
+        out.append(f'actuator.P_a_bar = {_fmt(ac.P_a_bar)} Pa must be below line.P_l_bar = '
+                   f'{_fmt(p.line.P_l_bar)} Pa (the pilot valve feeds the actuator from the line)')
+    v_min = ac.V_a0 - ac.S_a * p.x_a_stop
+    if v_min <= ac.V_a_min:
+        out.append(f'actuator.V_a0 = {_fmt(ac.V_a0)} m^3 leaves {_fmt(v_min)} m^3 at full stroke,'
+                   f' not above actuator.V_a_min = {_fmt(ac.V_a_min)} m^3')
+    if p.i_full > sp.I_max * (1.0 + REL_TOL):
+        out.append(f'full displacement needs i_s = {_fmt(p.i_full)} A beyond I_max = '
+                   f'{_fmt(sp.I_max)} A (eq. 2)')
+    return out
+
+
+def params_from_dict(data: Mapping[str, Any], source: str | None = None) -> Params:
+    """Validate a nested or dotted mapping and build :class:`Params`.
+
+    Raises
+    ------
+    ParamError
+        With one line per unknown, missing or bad value.
+    """
+    errors: list[str] = []
+    flat = _flatten(data, errors)
+    specs = {s.name: s for s in iter_specs()}
+    values: dict[str, dict[str, Any]] = {g: {} for g in GROUPS}
+    for key, val in flat.items():
+        s = specs.get(key)
+        if s is None:
+            errors.append(_unknown_key_line(key))
+            continue
+        v, err = check_value(s, val)
+        if err:
+            errors.append(err)
+        else:
+            values[key.split('.')[0]][key.split('.')[1]] = v
+    for name, s in specs.items():
+        if s.required and name not in flat:
+            errors.append(f'{name}: missing ({s.unit}, {s.desc})')
+    if errors:
+        raise ParamError(errors, source)
+    p = Params(**{g: cls(**values[g]) for g, cls in GROUPS.items()})
+    errors = _cross_checks(p)
+    if errors:
+        raise ParamError(errors, source)
+    return p
+
+
+def ros_parameters(doc: Any) -> Mapping[str, Any]:
+    """Return the mapping under ``<node>: ros__parameters:``, or the document itself."""
+    if isinstance(doc, Mapping):
+        for val in doc.values():
+            if isinstance(val, Mapping) and 'ros__parameters' in val:
+                return val['ros__parameters'] or {}
+        return doc
+    return {}
+
+
+def read_yaml(path: str | Path) -> Any:
+    """Read a YAML file, turning I/O and syntax problems into :class:`ParamError`."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ParamError([f'cannot read {path}: {exc.strerror or exc}']) from None
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, 'problem_mark', None)
+        where = f' at line {mark.line + 1}' if mark else ''
+        raise ParamError([f'{path}: not valid YAML{where}: {getattr(exc, "problem", exc)}']) \
+            from None
+
+
+def load_params(path: str | Path) -> Params:
+    """Load and validate plant parameters from a params file such as ``config/pump.yaml``.
+
+    Both a ROS 2 params file (``/**: ros__parameters:``) and a plain ``{group: {key: value}}``
+    file are accepted. Values are SI, pressures gauge.
+
+    Raises
+    ------
+    ParamError
+        With one line per problem (unknown key, missing key, non-number, out of range, D1).
+    """
+    doc = read_yaml(path)
+    data = ros_parameters(doc)
+    if not isinstance(data, Mapping) or not data:
+        raise ParamError([f'{path}: no parameters found'])
+    return params_from_dict(data, source=str(path))
+
+
+def default_params_path() -> Path:
+    """The reference parameter file: ``$HYDROPUMP_PARAMS``, the repo's or the installed copy."""
+    import os
+    env = os.environ.get('HYDROPUMP_PARAMS')
+    if env:
+        return Path(env)
+    here = Path(__file__).resolve()
+    for cand in (here.parents[2] / 'config' / 'pump.yaml',
+                 here.parent / 'data' / 'pump.yaml'):
+        if cand.is_file():
+            return cand
+    raise ParamError(['no parameter file found: pass one, or set HYDROPUMP_PARAMS'])

@@ -1,0 +1,223 @@
+"""Scenario files: input signals scheduled in simulation time (SI units).
+
+One format serves ``hydropump simulate`` and the ROS simulator node. Example::
+
+    duration: 2.0                # s
+    model: fine                  # fine | simplified | simplified_Kc
+    params: pump.yaml            # optional, relative to this file
+    overrides: {spool.F_coul_c: 0.5}
+    inputs:
+      current:                   # absolute solenoid current, A
+        steps: [[0.0, 0.46], [0.5, 0.54]]
+        sine: {amplitude: 0.01, frequency: 2.0, start: 1.0}
+      aperture: {steps: [[0.0, 0.5], [1.0, 0.6]]}
+      load_pressure: 1.2e+7      # Pa (gauge)
+      shaft_speed: 25.0          # Hz
+
+A signal is a number, or a mapping with ``steps`` (held values) or ``ramp`` (linear
+interpolation) as ``[t, value]`` pairs, or ``offset``, plus an optional ``sine``
+(``amplitude``, ``frequency`` [Hz], ``phase`` [rad], ``start`` [s]); the parts add up.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .params import default_params_path, load_params, ParamError, Params, read_yaml
+
+SIGNALS = {
+    'current': ('A', 'absolute solenoid current'),
+    'load_pressure': ('Pa', 'load pressure P_u (gauge)'),
+    'aperture': ('-', 'load aperture xi_u'),
+    'shaft_speed': ('Hz', 'shaft frequency f_p'),
+}
+_TOP_KEYS = {'duration', 'model', 'params', 'overrides', 'inputs', 'dt_out', 'output'}
+_SIGNAL_KEYS = {'steps', 'ramp', 'offset', 'sine'}
+_SINE_KEYS = {'amplitude', 'frequency', 'phase', 'start'}
+
+
+class ScenarioError(ValueError):
+    """Invalid scenario: ``lines`` holds one line per problem."""
+
+    def __init__(self, lines: list[str], source: str | None = None):
+        self.lines = list(lines)
+        head = f'invalid scenario {source}' if source else 'invalid scenario'
+        super().__init__(head + ':\n' + '\n'.join('  ' + ln for ln in self.lines))
+
+
+@dataclass(frozen=True)
+class Signal:
+    """A scheduled signal; call it with a time or an array of times [s]."""
+
+    kind: str = 'constant'            # constant | steps | ramp
+    points: tuple = ()                # ((t, value), ...)
+    offset: float = 0.0
+    sine: tuple = (0.0, 0.0, 0.0, 0.0)  # amplitude, frequency, phase, start
+
+    def __call__(self, t):
+        t = np.asarray(t, dtype=float)
+        if self.kind == 'constant':
+            v = np.full(t.shape, self.offset)
+        else:
+            ts = np.array([pt[0] for pt in self.points])
+            vs = np.array([pt[1] for pt in self.points])
+            if self.kind == 'ramp':
+                v = np.interp(t, ts, vs)
+            else:
+                idx = np.searchsorted(ts, t, side='right') - 1
+                v = vs[np.clip(idx, 0, None)]
+        amp, freq, phase, start = self.sine
+        if amp:
+            v = v + np.where(t >= start, amp * np.sin(2 * np.pi * freq * (t - start) + phase),
+                             0.0)
+        return v if v.ndim else float(v)
+
+    def change_times(self) -> list[float]:
+        """Times at which a held signal changes (for schedulers)."""
+        return [pt[0] for pt in self.points] if self.kind == 'steps' else []
+
+
+@dataclass
+class Scenario:
+    duration: float
+    model: str = 'fine'
+    params: Params | None = None
+    inputs: dict = field(default_factory=dict)
+    dt_out: float = 1.0e-3
+    output: str | None = None
+
+
+def _number(v: Any, where: str, errors: list[str]) -> float | None:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        errors.append(f'{where} = {v!r}: expected a finite number')
+        return None
+    return float(v)
+
+
+def parse_signal(spec: Any, name: str, errors: list[str]) -> Signal | None:
+    """Build a :class:`Signal` from its YAML form, appending problems to ``errors``."""
+    where = f'inputs.{name}'
+    if not isinstance(spec, Mapping):
+        v = _number(spec, where, errors)
+        return None if v is None else Signal(offset=v)
+    unknown = set(spec) - _SIGNAL_KEYS
+    if unknown:
+        errors.append(f'{where}: unknown key(s) {", ".join(sorted(map(str, unknown)))} '
+                      f'(use {", ".join(sorted(_SIGNAL_KEYS))})')
+    if 'steps' in spec and 'ramp' in spec:
+        errors.append(f'{where}: give steps or ramp, not both')
+        return None
+    kind, points = 'constant', ()
+    for key in ('steps', 'ramp'):
+        if key in spec:
+            kind = key
+            raw = spec[key]
+            if not isinstance(raw, list) or not raw:
+                errors.append(f'{where}.{key}: expected a list of [t, value] pairs')
+                return None
+            pts = []
+            for i, pair in enumerate(raw):
+                if not (isinstance(pair, (list, tuple)) and len(pair) == 2):
+                    errors.append(f'{where}.{key}[{i}] = {pair!r}: expected [t, value]')
+                    return None
+                t = _number(pair[0], f'{where}.{key}[{i}] time', errors)
+                v = _number(pair[1], f'{where}.{key}[{i}] value', errors)
+                if t is None or v is None:
+                    return None
+                pts.append((t, v))
+            if any(b[0] <= a[0] for a, b in zip(pts, pts[1:])):
+                errors.append(f'{where}.{key}: times must increase')
+                return None
+            points = tuple(pts)
+    offset = 0.0
+    if 'offset' in spec:
+        if kind != 'constant':
+            errors.append(f'{where}: offset only goes with a sine, not with {kind}')
+        offset = _number(spec['offset'], f'{where}.offset', errors) or 0.0
+    sine = (0.0, 0.0, 0.0, 0.0)
+    if 'sine' in spec:
+        s = spec['sine']
+        if not isinstance(s, Mapping) or 'amplitude' not in s or 'frequency' not in s:
+            errors.append(f'{where}.sine: expected amplitude and frequency')
+            return None
+        bad = set(s) - _SINE_KEYS
+        if bad:
+            errors.append(f'{where}.sine: unknown key(s) {", ".join(sorted(map(str, bad)))}')
+        vals = [_number(s.get(k, 0.0), f'{where}.sine.{k}', errors) for k in
+                ('amplitude', 'frequency', 'phase', 'start')]
+        if any(v is None for v in vals):
+            return None
+        sine = tuple(vals)
+    return Signal(kind=kind, points=points, offset=offset, sine=sine)
+
+
+def parse_inputs(data: Any, errors: list[str]) -> dict[str, Signal]:
+    """Parse the ``inputs`` mapping of a scenario."""
+    if data is None:
+        return {}
+    if not isinstance(data, Mapping):
+        errors.append('inputs: expected a mapping of signals')
+        return {}
+    out = {}
+    for name, spec in data.items():
+        if name not in SIGNALS:
+            errors.append(f'inputs.{name}: unknown signal (use {", ".join(SIGNALS)})')
+            continue
+        sig = parse_signal(spec, name, errors)
+        if sig is not None:
+            out[name] = sig
+    return out
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate a scenario file.
+
+    Raises
+    ------
+    ScenarioError
+        One line per problem; parameter-file problems come through as well.
+    """
+    path = Path(path)
+    try:
+        doc = read_yaml(path)
+    except ParamError as exc:
+        raise ScenarioError(exc.lines, str(path)) from None
+    if not isinstance(doc, Mapping):
+        raise ScenarioError(['expected a mapping at the top level'], str(path))
+    errors: list[str] = []
+    for key in set(doc) - _TOP_KEYS:
+        errors.append(f'{key}: unknown key (use {", ".join(sorted(_TOP_KEYS))})')
+    duration = _number(doc.get('duration'), 'duration', errors) if 'duration' in doc else None
+    if 'duration' not in doc:
+        errors.append('duration: missing (s)')
+    elif duration is not None and duration <= 0:
+        errors.append(f'duration = {duration}: must be positive (s)')
+    dt_out = _number(doc.get('dt_out', 1.0e-3), 'dt_out', errors)
+    if dt_out is not None and dt_out <= 0:
+        errors.append(f'dt_out = {dt_out}: must be positive (s)')
+    model = doc.get('model', 'fine')
+    if model not in ('fine', 'simplified', 'simplified_Kc'):
+        errors.append(f'model = {model!r}: use fine, simplified or simplified_Kc')
+    inputs = parse_inputs(doc.get('inputs'), errors)
+    params = None
+    try:
+        ppath = (path.parent / doc['params']) if 'params' in doc else default_params_path()
+        params = load_params(ppath)
+        overrides = doc.get('overrides') or {}
+        if not isinstance(overrides, Mapping):
+            errors.append('overrides: expected a mapping of dotted parameter names')
+        elif overrides:
+            params = params.replace(overrides)
+    except ParamError as exc:
+        errors.extend(exc.lines)
+    if errors:
+        raise ScenarioError(errors, str(path))
+    return Scenario(duration=duration, model=model, params=params, inputs=inputs,
+                    dt_out=dt_out, output=doc.get('output'))
+

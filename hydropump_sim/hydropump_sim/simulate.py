@@ -1,0 +1,329 @@
+"""Offline simulation, the fixed-increment stepper and the Radau reference.
+
+Inputs are held (zero-order hold) over each integration increment, as a digital current
+driver and the ROS simulator hold them; inside an increment the Rodas4 stepper adapts its own
+steps, so accuracy does not depend on the increment. The dither of ``input.dither_amp`` is
+part of the plant and is evaluated continuously.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+import math
+from pathlib import Path
+from typing import Union
+
+import numpy as np
+from scipy.integrate import solve_ivp
+
+from . import _core as c
+from .model import INPUTS, OUTPUT_UNITS, OUTPUTS, pack, state_names
+from .params import Params
+from .trim import equilibrium, operating_inputs
+
+Signal = Union[float, Callable[[float], float], None]
+
+
+class IntegrationError(RuntimeError):
+    """The integrator could not advance (step size underflow or non-finite state)."""
+
+
+@dataclass(frozen=True)
+class IntegratorConfig:
+    """Settings of the Rodas4 stepper.
+
+    ``rtol`` is the relative tolerance; absolute tolerances are ``rtol`` times each state's
+    scale (4 mm spool stroke, 8 mm plate stroke, 1 MPa pressures, 0.1 m/s rates).
+    """
+
+    rtol: float = 1.0e-5
+    h_min: float = 1.0e-10
+    max_steps: int = 20000
+
+
+@dataclass
+class SimResult:
+    """Time response on a uniform grid (SI units, gauge pressures).
+
+    Attributes ``t``, ``I_s``, ``x_c``, ``v_c``, ``x_a``, ``v_a``, ``P_a``, ``P_l``, ``Q_p``,
+    ``Q_a``, ``q_l``, ``Q_load``, ``Q_relief`` are arrays of equal length. ``x`` holds the model
+    states (columns ``states``), ``u`` the held inputs ``[i_s, P_u, xi_u, f_p]``.
+    """
+
+    t: np.ndarray
+    y: np.ndarray
+    x: np.ndarray
+    u: np.ndarray
+    model: str
+    states: tuple
+    n_clamped: int = 0
+    stats: dict = field(default_factory=dict)
+
+    def __getattr__(self, name):
+        if name in OUTPUTS:
+            return self.__dict__['y'][:, OUTPUTS.index(name)]
+        if name in INPUTS:
+            return self.__dict__['u'][:, INPUTS.index(name)]
+        raise AttributeError(name)
+
+    @property
+    def units(self) -> dict:
+        return dict(zip(OUTPUTS, OUTPUT_UNITS))
+
+    def to_npz(self, path: str | Path) -> None:
+        """Save arrays, names and units to ``.npz``."""
+        np.savez_compressed(path, t=self.t, y=self.y, x=self.x, u=self.u,
+                            outputs=np.array(OUTPUTS), units=np.array(OUTPUT_UNITS),
+                            states=np.array(self.states), model=np.array(self.model))
+
+    @classmethod
+    def from_npz(cls, path: str | Path) -> SimResult:
+        with np.load(path) as d:
+            return cls(t=d['t'], y=d['y'], x=d['x'], u=d['u'], model=str(d['model']),
+                       states=tuple(str(s) for s in d['states']))
+
+    def to_csv(self, path: str | Path) -> None:
+        """Save time and outputs as CSV with a unit row in the header."""
+        head = 't [s],' + ','.join(f'{n} [{u}]' for n, u in zip(OUTPUTS, OUTPUT_UNITS))
+        np.savetxt(path, np.column_stack([self.t, self.y]), delimiter=',', header=head,
+                   comments='', fmt='%.10g')
+
+
+def _sample(signal: Signal, default: float, t: np.ndarray, name: str) -> np.ndarray:
+    """Evaluate a float, a callable of time or ``None`` on the increment start times."""
+    if signal is None:
+        return np.full(t.shape, default)
+    if callable(signal):
+        try:
+            v = np.asarray(signal(t), dtype=float)
+            if v.shape != t.shape:
+                raise ValueError
+        except Exception:
+            v = np.array([float(signal(float(tk))) for tk in t])
+    else:
+        try:
+            v = np.full(t.shape, float(signal))
+        except (TypeError, ValueError):
+            raise ValueError(f'{name} must be a number or a function of time, got '
+                             f'{signal!r}') from None
+    if not np.all(np.isfinite(v)):
+        k = int(np.flatnonzero(~np.isfinite(v))[0])
+        raise ValueError(f'{name} is not finite at t = {t[k]:.6g} s')
+    return v
+
+
+def input_table(params: Params, t: np.ndarray, current: Signal, load_pressure: Signal = None,
+                aperture: Signal = None, shaft_speed: Signal = None) -> tuple[np.ndarray, int]:
+    """Held inputs ``[i_s, P_u, xi_u, f_p]`` on ``t``; current clamped to eq. 2.
+
+    Returns the table and the number of clamped current samples.
+    """
+    u0 = operating_inputs(params)
+    I_s = _sample(current, params.I_nominal, t, 'current')
+    lo, hi = params.I_limits
+    n_clamped = int(np.count_nonzero((I_s < lo) | (I_s > hi)))
+    U = np.empty((t.size, c.N_U))
+    U[:, c.U_IS] = np.clip(I_s, lo, hi) - params.I_nominal
+    U[:, c.U_PU] = _sample(load_pressure, u0[c.U_PU], t, 'load_pressure')
+    U[:, c.U_XI] = _sample(aperture, u0[c.U_XI], t, 'aperture')
+    U[:, c.U_FP] = _sample(shaft_speed, u0[c.U_FP], t, 'shaft_speed')
+    for col, name, lo_, hi_ in ((c.U_XI, 'aperture', 0.0, 1.0),
+                                (c.U_FP, 'shaft_speed', 0.0, 200.0),
+                                (c.U_PU, 'load_pressure', -params.fluid.p_atm, 5.0e7)):
+        bad = (U[:, col] < lo_) | (U[:, col] > hi_)
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            raise ValueError(f'{name} = {U[k, col]:.6g} at t = {t[k]:.6g} s is outside '
+                             f'[{lo_:.6g}, {hi_:.6g}]')
+    return U, n_clamped
+
+
+def _grid(duration: float, dt_out: float, dt_max: float) -> tuple[int, int, float]:
+    """Output points, increments per output and increment length."""
+    if not (isinstance(duration, (int, float)) and math.isfinite(duration) and duration > 0):
+        raise ValueError(f'duration must be a positive number of seconds, got {duration!r}')
+    if not (math.isfinite(dt_out) and 0 < dt_out <= duration):
+        raise ValueError(f'dt_out must be in (0, duration], got {dt_out!r}')
+    n_out = int(round(duration / dt_out))
+    decim = max(1, int(math.ceil(dt_out / dt_max - 1e-9)))
+    return n_out, decim, dt_out / decim
+
+
+def simulate(params: Params, duration: float, current: Signal = None, *, model: str = 'fine',
+             load_pressure: Signal = None, aperture: Signal = None, shaft_speed: Signal = None,
+             x0=None, dt_out: float = 1.0e-3, dt_max: float = 1.0e-3, method: str = 'rodas',
+             config: IntegratorConfig = IntegratorConfig(), rtol: float | None = None
+             ) -> SimResult:
+    """Simulate the fine or the simplified model.
+
+    Parameters
+    ----------
+    params : Params
+        Plant parameters (:func:`hydropump_sim.load_params`).
+    duration : float
+        Simulated time [s].
+    current : float or callable or None
+        Absolute solenoid current ``I_s`` [A] or a function of time ``t`` [s]; ``None`` is
+        ``I_min + I_max`` (50 %). Values outside eq. 2 are clamped and counted.
+    model : {'fine', 'simplified', 'simplified_Kc'}
+        ``'simplified'`` is eq. 10 as printed; ``'simplified_Kc'`` keeps ``K_c``.
+    load_pressure, aperture, shaft_speed : float or callable or None
+        ``P_u`` [Pa gauge], ``xi_u`` [-] and ``f_p`` [Hz]; ``None`` = parameter file value.
+    x0 : array_like, optional
+        Initial state; default the equilibrium at the initial inputs.
+    dt_out : float
+        Output grid [s]. Inputs are held over increments of at most ``dt_max``.
+    method : {'rodas', 'radau'}
+        The compiled Rodas4 stepper, or scipy's Radau (the reference; use a tight ``rtol``).
+    rtol : float, optional
+        Relative tolerance (overrides ``config.rtol``).
+
+    Returns
+    -------
+    SimResult
+    """
+    n_out, decim, dt = _grid(duration, dt_out, dt_max)
+    n_inc = n_out * decim
+    t_inc = np.arange(n_inc) * dt
+    U, n_clamped = input_table(params, t_inc, current, load_pressure, aperture, shaft_speed)
+    p = pack(params, model)
+    if x0 is None:
+        x0 = equilibrium(params, U[0, c.U_IS] + params.I_nominal, load_pressure=U[0, c.U_PU],
+                         aperture=U[0, c.U_XI], shaft_speed=U[0, c.U_FP], model=model).x
+    x0 = np.asarray(x0, dtype=float)
+    names = state_names(params, model)
+    if x0.shape != (len(names),):
+        raise ValueError(f'x0 must have {len(names)} entries ({", ".join(names)})')
+    Y = np.zeros((n_out + 1, c.N_Y))
+    X = np.zeros((n_out + 1, x0.size))
+    stats = np.zeros(2, dtype=np.int64)
+    tol = config.rtol if rtol is None else rtol
+    if method == 'rodas':
+        status, done = c.run(x0, 0.0, dt, U, p, tol, config.h_min, config.max_steps, decim, Y,
+                             X, stats)
+        if status != c.OK:
+            why = {c.FAIL_STEP: 'step size underflow', c.FAIL_NAN: 'non-finite state',
+                   c.FAIL_STEPS: 'too many steps'}[status]
+            raise IntegrationError(f'integration failed at t = {done * dt:.6g} s: {why}')
+    elif method == 'radau':
+        _run_radau(x0, dt, U, p, tol, decim, Y, X, stats)
+    else:
+        raise ValueError(f'unknown method {method!r}: choose rodas or radau')
+    t = np.arange(n_out + 1) * dt_out
+    U_out = np.vstack([U[::decim], U[-1:]])
+    return SimResult(t=t, y=Y, x=X, u=U_out, model=model, states=names, n_clamped=n_clamped,
+                     stats={'accepted': int(stats[0]), 'rejected': int(stats[1])})
+
+
+def _run_radau(x0, dt, U, p, rtol, decim, Y, X, stats):
+    """Reference integration with scipy's Radau over each held-input segment."""
+    n = x0.size
+    scale = c.state_scale(p, n)
+    dx = np.empty(n)
+    ybuf = np.empty(c.N_Y)
+    J = np.empty((n, n))
+    work = np.empty(n)
+
+    def fun(t, x, u):
+        out = np.empty(n)
+        c.evaluate(t, x, u, p, out, ybuf)
+        return out
+
+    def jac(t, x, u):
+        f0 = fun(t, x, u)
+        c.jacobian(t, x.copy(), u, p, f0, scale, J, work, ybuf)
+        return J.copy()
+
+    x = x0.copy()
+    c.evaluate(0.0, x, U[0], p, dx, Y[0])
+    X[0] = x
+    # Join consecutive increments with equal inputs into one call.
+    k = 0
+    n_inc = U.shape[0]
+    row = 1
+    while k < n_inc:
+        k_end = k + 1
+        while k_end < n_inc and np.array_equal(U[k_end], U[k]) and k_end % decim != 0:
+            k_end += 1
+        t0, t1 = k * dt, k_end * dt
+        sol = solve_ivp(fun, (t0, t1), x, method='Radau', rtol=rtol, atol=rtol * scale,
+                        jac=jac, args=(U[k],), first_step=min(1e-5, t1 - t0))
+        if not sol.success:
+            raise IntegrationError(f'Radau failed at t = {t0:.6g} s: {sol.message}')
+        stats[0] += sol.t.size - 1
+        x = sol.y[:, -1].copy()
+        k = k_end
+        if k % decim == 0:
+            kk = min(k, n_inc - 1)
+            c.evaluate(t1, x, U[kk], p, dx, Y[row])
+            X[row] = x
+            row += 1
+
+
+class Simulator:
+    """Fixed-increment stepper for the ROS simulator: holds ``t``, ``x`` and the inputs.
+
+    Parameters
+    ----------
+    params : Params
+    dt : float
+        Increment [s] that :meth:`step` advances (1 ms for a 1 kHz node).
+    model : str
+        Model name, see :func:`hydropump_sim.model.pack`.
+    config : IntegratorConfig
+    """
+
+    def __init__(self, params: Params, dt: float = 1.0e-3, model: str = 'fine',
+                 config: IntegratorConfig = IntegratorConfig()):
+        if not (math.isfinite(dt) and dt > 0):
+            raise ValueError(f'dt must be positive, got {dt!r}')
+        self.params = params
+        self.model = model
+        self.dt = dt
+        self.config = config
+        self._p = pack(params, model)
+        self.stats = np.zeros(2, dtype=np.int64)
+        self.u = operating_inputs(params)
+        self.reset()
+
+    def reset(self, current: float | None = None) -> None:
+        """Return to the equilibrium at the parameter file's operating point, ``t = 0``."""
+        self.u = operating_inputs(params=self.params, current=current)
+        self.x = equilibrium(self.params, current, model=self.model).x.copy()
+        self.x0 = self.x.copy()
+        self.t = 0.0
+        self._k = 0
+        self._h = self.dt
+
+    def set_inputs(self, current: float | None = None, load_pressure: float | None = None,
+                   aperture: float | None = None, shaft_speed: float | None = None) -> None:
+        """Hold new inputs from the next increment; the current is absolute [A]."""
+        if current is not None:
+            lo, hi = self.params.I_limits
+            self.u[c.U_IS] = min(max(current, lo), hi) - self.params.I_nominal
+        if load_pressure is not None:
+            self.u[c.U_PU] = load_pressure
+        if aperture is not None:
+            self.u[c.U_XI] = aperture
+        if shaft_speed is not None:
+            self.u[c.U_FP] = shaft_speed
+
+    def step(self) -> None:
+        """Advance one increment ``dt``; raise :class:`IntegrationError` on failure."""
+        t0 = self._k * self.dt
+        x = self.x.copy()
+        h, status = c.advance(t0, t0 + self.dt, x, self.u, self._p, self._h, self.config.rtol,
+                              self.config.h_min, self.config.max_steps, self.stats)
+        if status != c.OK:
+            raise IntegrationError(f'integration failed at t = {t0:.6g} s (code {status})')
+        self.x = x
+        self._h = h
+        self._k += 1
+        self.t = self._k * self.dt
+
+    def outputs(self) -> np.ndarray:
+        """Outputs at the current state (``OUTPUTS`` layout, SI)."""
+        y = np.empty(c.N_Y)
+        c.evaluate(self.t, self.x, self.u, self._p, np.empty_like(self.x), y)
+        return y
