@@ -102,9 +102,7 @@ def plot_result(res, params, path) -> None:
     plt.close(fig)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog='hydropump', description=__doc__.splitlines()[0])
-    sub = ap.add_subparsers(dest='command', required=True)
+def _register_plant_commands(sub) -> None:
     a = sub.add_parser('analyze', help='equilibrium, modes, eqs. 14-16, step and Bode plots')
     a.add_argument('--params', help='plant params file (default: config/pump.yaml)')
     a.add_argument('--out', help='output folder (default: out/analyze-<time>)')
@@ -116,6 +114,18 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument('--out', help='result file, .csv or .npz')
     s.add_argument('--plot', help='plot file (default: beside the result)')
     s.set_defaults(func=cmd_simulate)
+
+
+# Each entry adds its sub-commands to the parser; a command's ``func(args)`` returns the exit
+# code. Other modules register here with a ``register(subparsers)`` function.
+COMMANDS = [_register_plant_commands]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog='hydropump', description=__doc__.splitlines()[0])
+    sub = ap.add_subparsers(dest='command', required=True)
+    for register in COMMANDS:
+        register(sub)
     return ap
 
 

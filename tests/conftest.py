@@ -1,0 +1,19 @@
+"""Shared fixtures: the reference parameter set and ROS environment hygiene."""
+
+import os
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PUMP_YAML = ROOT / 'config' / 'pump.yaml'
+REFERENCE_YAML = ROOT.parent / 'shared' / 'reference' / 'pump_reference.yaml'
+
+# Every test process keeps DDS discovery on loopback.
+os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+
+
+@pytest.fixture(scope='session')
+def params():
+    from hydropump_sim import load_params
+    return load_params(PUMP_YAML)
