@@ -19,6 +19,7 @@ $(STAMP): $(SETUP_FILES)
 	$(BIN)/python -m pip install --quiet --upgrade pip==25.3
 	$(BIN)/python -m pip install --quiet -r requirements.txt
 	$(BIN)/python -m pip install --quiet --no-build-isolation --no-deps \
+		--config-settings editable_mode=compat \
 		$(foreach p,$(PKGS),-e $(p))
 	touch $@
 
