@@ -17,3 +17,12 @@ os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 def params():
     from hydropump_sim import load_params
     return load_params(PUMP_YAML)
+
+# Property tests: CI runs a fixed (derandomised) set; HYPOTHESIS_PROFILE=explore searches more.
+try:
+    from hypothesis import settings as _hs
+    _hs.register_profile('ci', derandomize=True, deadline=None)
+    _hs.register_profile('explore', max_examples=400, deadline=None)
+    _hs.load_profile(os.environ.get('HYPOTHESIS_PROFILE', 'ci'))
+except ImportError:  # pragma: no cover
+    pass

@@ -84,15 +84,27 @@ def groot(dp, dp_cr, gamma):
     return dp ** e if dp > 0.0 else 0.0
 
 
+# Penetration, as a fraction of the stroke limit, over which an end stop's damping ramps in.
+STOP_RAMP = 0.01
+
+
 @jit
 def stop_force(x, v, x_max, k, c):
-    """Penalty end stop at ``+-x_max``: spring and damper that push and never pull."""
+    """Penalty end stop at ``+-x_max``: spring and damper that push and never pull.
+
+    The damping ramps in over ``STOP_RAMP * x_max`` of penetration, so the force is continuous
+    at contact (a jump there stalls any error-controlled integrator at a fast impact).
+    """
     if k <= 0.0:
         return 0.0
     if x > x_max:
-        return min(-k * (x - x_max) - c * v, 0.0)
+        pen = x - x_max
+        ramp = min(pen / (STOP_RAMP * x_max), 1.0)
+        return min(-k * pen - ramp * c * v, 0.0)
     if x < -x_max:
-        return max(-k * (x + x_max) - c * v, 0.0)
+        pen = x + x_max
+        ramp = min(-pen / (STOP_RAMP * x_max), 1.0)
+        return max(-k * pen - ramp * c * v, 0.0)
     return 0.0
 
 
@@ -108,14 +120,24 @@ def bulk_modulus(P, p):
     return beta * (1.0 + theta) / (1.0 + theta * beta / p_abs)
 
 
+# Relaxation time that returns a pressure pushed below absolute zero by a finite step [s].
+FLOOR_RELAX = 1.0e-4
+
+
 @jit
 def pressure_rate(P, flow, volume, p):
-    """Continuity ``dP/dt = beta/V * flow`` with the cavitation floor at absolute zero."""
+    """Continuity ``dP/dt = beta/V * flow`` with the cavitation floor at absolute zero.
+
+    Within ``dp_floor`` of absolute zero an outflow lowers the pressure ever more slowly (the
+    liquid cavitates instead), and a pressure below zero relaxes back in ``FLOOR_RELAX``.
+    """
     d = bulk_modulus(P, p) / volume * flow
-    if p[P_FLOOR] > 0.0 and d < 0.0:
+    if p[P_FLOOR] > 0.0:
         p_abs = P + p[P_PATM]
-        if p_abs < p[P_DPFLOOR]:
+        if d < 0.0 and p_abs < p[P_DPFLOOR]:
             d *= max(p_abs, 0.0) / p[P_DPFLOOR]
+        if p_abs < 0.0:
+            d -= p_abs / FLOOR_RELAX
     return d
 
 

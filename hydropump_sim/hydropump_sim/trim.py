@@ -55,12 +55,14 @@ def _line_pressure(p: np.ndarray, Q_p: float, u: np.ndarray) -> float:
         Q_load = p[c.P_MUU] * u[c.U_XI] * c.groot(P_l - u[c.U_PU], p[c.P_DPCRU], p[c.P_GAMMA])
         return Q_p - Q_load - c.relief_flow(P_l, p)
 
-    lo, hi = u[c.U_PU] - 1.0e7, 1.0e9
+    if Q_p <= 0.0:
+        return float(u[c.U_PU])  # no flow: the line rests at the load pressure
+    lo, hi = max(u[c.U_PU] - 1.0e7, -float(p[c.P_PATM])), 1.0e9
     if surplus(hi) > 0.0:
         raise TrimError('no equilibrium: the pump flow has nowhere to go (load aperture closed '
                         'and relief valve disabled)')
     if surplus(lo) < 0.0:
-        lo = -float(p[c.P_PATM])
+        return lo
     return optimize.brentq(surplus, lo, hi, xtol=1e-9, rtol=1e-14, maxiter=500)
 
 
@@ -122,17 +124,106 @@ def equilibrium(params: Params, current: float | None = None, *, load_pressure=N
         c.evaluate(0.0, z * scale, u, p, dx, ybuf)
         return dx * 1.0e-3 / scale
 
-    r0 = float(np.max(np.abs(resid(x0 / scale))))
-    x = x0
-    if r0 > tol:
-        sol = optimize.root(resid, x0 / scale, method='hybr', options={'xtol': 1e-13})
-        x = sol.x * scale
-    r = float(np.max(np.abs(resid(x / scale))))
-    if not np.isfinite(r) or r > max(tol, 1e-7):
-        raise TrimError(f'no equilibrium found at I_s = {u[0] + params.I_nominal:.4g} A, '
-                        f'P_u = {u[1]:.4g} Pa, xi_u = {u[2]:.4g}, f_p = {u[3]:.4g} Hz '
-                        f'(scaled residual {r:.2e})')
+    def worst(x):
+        return float(np.max(np.abs(resid(x / scale))))
+
+    def polish(x):
+        if worst(x) <= tol:
+            return x
+        sol = optimize.root(resid, x / scale, method='hybr', options={'xtol': 1e-13})
+        return sol.x * scale
+
+    def good(x, accept):
+        return _physical(params, x, u, p, model) and worst(x) <= accept
+
+    x = polish(x0) if _physical(params, x0, u, p, model) else x0
+    if not good(x, max(tol, 1e-7)) and model == 'fine':
+        xs = _standby_seed(params, u, p)
+        if xs is not None:
+            xs = polish(xs)
+            x = xs if good(xs, max(tol, 1e-7)) else x
+    if not good(x, max(tol, 1e-7)):
+        # No closed-form steady state here (a spool or plate on its stop, or too little line
+        # pressure to destroke the pump): let the dynamics find it, then polish. Some such
+        # points are degenerate (a dead-headed pump at zero displacement rests at any line
+        # pressure below the relief valve), so a settled state is accepted more loosely.
+        x = _march(params, x0, u, p, model)
+        xp = polish(x)
+        x = xp if good(xp, max(tol, 1e-7)) else x
+        if not good(x, 1e-5):
+            raise TrimError(f'no equilibrium found at I_s = {u[0] + params.I_nominal:.4g} A, '
+                            f'P_u = {u[1]:.4g} Pa, xi_u = {u[2]:.4g}, f_p = {u[3]:.4g} Hz '
+                            f'(scaled residual {worst(x):.2e})')
+    r = worst(x)
     y = np.empty(c.N_Y)
     c.evaluate(0.0, x, u, p, dx, y)
     return Equilibrium(x=x, u=u, outputs=dict(zip(OUTPUTS, y.tolist())), model=model,
                        residual=r)
+
+
+def _physical(params: Params, x: np.ndarray, u: np.ndarray, p: np.ndarray, model: str) -> bool:
+    """A steady state the pump can hold: pressures above absolute zero, the actuator between
+    tank and line pressure (D5; otherwise the pilot feedback reverses), parts near their
+    stroke."""
+    y = np.empty(c.N_Y)
+    c.evaluate(0.0, x, u, p, np.empty_like(x), y)
+    P_a, P_l, x_a, x_c = y[c.Y_PA], y[c.Y_PL], y[c.Y_XA], y[c.Y_XC]
+    slack = 1.0e4  # Pa: the regularised orifice lets P_a sit a little outside P_T..P_l
+    return bool(np.all(np.isfinite(x)) and P_l + params.fluid.p_atm >= 0.0
+                and params.fluid.P_T - slack <= P_a <= P_l + slack
+                and abs(x_a) <= 1.5 * params.x_a_stop
+                and abs(x_c) <= 1.5 * params.spool.x_c_max)
+
+
+def _standby_seed(params: Params, u: np.ndarray, p: np.ndarray) -> np.ndarray | None:
+    """Steady state with the pilot valve open to the line (``P_a = P_l``): the line pressure
+    is too low to hold the demanded displacement, so the pump settles where the line pressure
+    on the actuator balances the bias spring (a pump's standby pressure)."""
+    sp, S_a, S_d = params.spool, params.actuator.S_a, params.plate.S_d
+
+    def state(x_a):
+        x_c = (sp.phi_s * u[c.U_IS] - sp.K_a * x_a) / (sp.K_a + sp.K_c)
+        x_c = min(max(x_c, -sp.x_c_max), sp.x_c_max)
+        P_l = ((params.actuator.P_a_bar * S_a + params.line.P_l_bar * S_d
+                - params.plate.K_b * x_a - sp.K_a * (x_a + x_c)) / (S_a + S_d))
+        return x_c, P_l
+
+    def surplus(x_a):
+        x_c, P_l = state(x_a)
+        Q_load = p[c.P_MUU] * u[c.U_XI] * c.groot(P_l - u[c.U_PU], p[c.P_DPCRU], p[c.P_GAMMA])
+        return c.pump_flow(x_a, u[c.U_FP], p) - Q_load - c.relief_flow(P_l, p)
+
+    lo, hi = -params.x_a_stop, params.x_a_stop
+    if surplus(lo) * surplus(hi) > 0.0:
+        return None
+    x_a = optimize.brentq(surplus, lo, hi, xtol=1e-15)
+    x_c, P_l = state(x_a)
+    x = [x_c, 0.0, x_a, 0.0, P_l, P_l]
+    if params.input.tau_s > 0.0:
+        x.append(u[c.U_IS])
+    return np.array(x)
+
+
+def _march(params: Params, x0: np.ndarray, u: np.ndarray, p: np.ndarray, model: str,
+           horizon: float = 10.0) -> np.ndarray:
+    """Integrate with held inputs from a physically clipped seed until the state settles."""
+    x = x0.copy()
+    if model == 'fine':
+        x[5] = max(x[5], params.fluid.P_T)
+        x[4] = min(max(x[4], params.fluid.P_T), x[5])
+    dt, chunk = 1.0e-3, 200
+    U = np.tile(u, (chunk, 1))
+    Y = np.empty((chunk + 1, c.N_Y))
+    X = np.empty((chunk + 1, x.size))
+    stats = np.zeros(2, dtype=np.int64)
+    scale = c.state_scale(p, x.size)
+    dx = np.empty_like(x)
+    for k in range(int(horizon / (dt * chunk))):
+        status, _ = c.run(x, k * dt * chunk, dt, U, p, 1e-6, 1e-12, 20000, 1, Y, X, stats)
+        if status != c.OK:
+            break
+        x = X[-1].copy()
+        c.evaluate(0.0, x, u, p, dx, Y[0])
+        if np.max(np.abs(dx) * 1.0e-3 / scale) < 1e-9:
+            break
+    return x
