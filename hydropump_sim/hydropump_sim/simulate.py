@@ -310,11 +310,13 @@ class Simulator:
             self.u[c.U_FP] = shaft_speed
 
     def step(self) -> None:
-        """Advance one increment ``dt``; raise :class:`IntegrationError` on failure."""
+        """Advance one increment ``dt``; raise :class:`IntegrationError` on failure (the
+        state is then left at the start of the increment)."""
         t0 = self._k * self.dt
         x = self.x.copy()
-        h, status = c.advance(t0, t0 + self.dt, x, self.u, self._p, self._h, self.config.rtol,
-                              self.config.h_min, self.config.max_steps, self.stats)
+        cfg = self.config
+        h, status = c.advance(t0, t0 + self.dt, x, self.u, self._p, self._h, cfg.rtol,
+                              cfg.h_min, cfg.max_steps, self.stats)
         if status != c.OK:
             raise IntegrationError(f'integration failed at t = {t0:.6g} s (code {status})')
         self.x = x

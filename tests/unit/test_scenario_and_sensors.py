@@ -1,0 +1,95 @@
+"""Scenario files and sensor models."""
+
+from hydropump_sim.params import ParamError
+from hydropump_sim.scenario import load_scenario, ScenarioError
+from hydropump_sim.sensors import (
+    apply_profile,
+    load_profile,
+    profile_from_dict,
+    SensorProfile,
+    SensorSpec,
+)
+import numpy as np
+import pytest
+
+from ..conftest import ROOT
+
+
+def _write(tmp_path, text):
+    f = tmp_path / 'sc.yaml'
+    f.write_text(text)
+    return f
+
+
+def test_scenario_signals(tmp_path):
+    sc = load_scenario(_write(tmp_path, f"""
+duration: 2.0
+params: {ROOT / 'config' / 'pump.yaml'}
+overrides: {{spool.F_coul_c: 0.5}}
+inputs:
+  current: {{steps: [[0.0, 0.46], [0.5, 0.54]], sine: {{amplitude: 0.01, frequency: 2.0,
+            start: 1.0}}}}
+  aperture: {{ramp: [[0.0, 0.5], [1.0, 0.7]]}}
+  load_pressure: 1.0e+7
+"""))
+    cur, ap, pu = sc.inputs['current'], sc.inputs['aperture'], sc.inputs['load_pressure']
+    assert cur(0.49) == 0.46 and cur(0.5) == 0.54
+    assert cur(1.125) == pytest.approx(0.54 + 0.01 * np.sin(2 * np.pi * 2 * 0.125))
+    assert ap(0.5) == pytest.approx(0.6)
+    assert pu(np.array([0.0, 3.0])).tolist() == [1.0e7, 1.0e7]
+    assert sc.params.spool.F_coul_c == 0.5
+
+
+def test_bad_scenario_lists_every_problem(tmp_path):
+    with pytest.raises(ScenarioError) as exc:
+        load_scenario(_write(tmp_path, """
+duration: -1
+model: coarse
+inputs:
+  current: {steps: [[0.5, 0.4], [0.1, 0.5]]}
+  pressure: 1.0e+7
+  aperture: {sine: {amplitude: 0.1}}
+overrides: {spool.mc: 1.0}
+"""))
+    text = '\n'.join(exc.value.lines)
+    assert 'duration = -1' in text
+    assert "model = 'coarse'" in text
+    assert 'inputs.current.steps: times must increase' in text
+    assert 'inputs.pressure: unknown signal' in text
+    assert 'inputs.aperture.sine: expected amplitude and frequency' in text
+    assert 'did you mean spool.m_c' in text
+
+
+def test_fractional_delay_noise_and_quantisation():
+    t = np.arange(0.0, 0.3, 1e-3)
+    x = np.where(t >= 0.1, 1.0, 0.0)
+    out = apply_profile(SensorProfile({'line_flow': SensorSpec(delay=0.0554)}), t,
+                        {'line_flow': x})['line_flow']
+    # The step at 100 ms arrives over the samples at 155 and 156 ms, split 0.6 / 1.0.
+    k = int(np.flatnonzero(out > 0)[0])
+    assert t[k] == pytest.approx(0.155) and out[k] == pytest.approx(0.6)
+    assert out[k + 1] == 1.0
+    noisy = apply_profile(SensorProfile({'line_flow': SensorSpec(noise_std=0.01, quantum=0.005)},
+                                        seed=3), t, {'line_flow': np.zeros_like(t)})['line_flow']
+    assert 0.007 < noisy.std() < 0.013
+    assert np.allclose(noisy / 0.005, np.round(noisy / 0.005))
+    again = apply_profile(SensorProfile({'line_flow': SensorSpec(noise_std=0.01)}, seed=3), t,
+                          {'line_flow': np.zeros_like(t)})['line_flow']
+    assert np.array_equal(np.round(again / 0.005) * 0.005, noisy)  # seeded: reproducible
+
+
+def test_first_order_filter():
+    t = np.arange(0.0, 0.2, 1e-3)
+    out = apply_profile(SensorProfile({'line_flow': SensorSpec(filter_tau=0.02)}), t,
+                        {'line_flow': np.where(t >= 0.05, 1.0, 0.0)})['line_flow']
+    assert out[np.searchsorted(t, 0.07)] == pytest.approx(1 - np.exp(-1.0), abs=0.03)
+
+
+def test_bench_profile():
+    prof = load_profile(ROOT / 'config' / 'bench.yaml')
+    assert prof.spec('line_flow').delay == 0.055
+    assert prof.plant_overrides['input.dither_amp'] > 0.0
+    with pytest.raises(ParamError, match='sensors.line_flow.delay'):
+        profile_from_dict({'sensors': {'line_flow': {'delay': -1.0}}})
+    with pytest.raises(ParamError, match='unknown signal'):
+        profile_from_dict({'sensors': {'flow': {'delay': 0.1}}})
