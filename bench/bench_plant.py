@@ -10,11 +10,11 @@ import sys
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import emit, median_time, row  # noqa: E402
-
 from hydropump_sim import load_params, simulate, Simulator  # noqa: E402
 from hydropump_sim.params import default_params_path  # noqa: E402
 from hydropump_sim.scaling import current_for_displacement  # noqa: E402
+
+from common import emit, median_time, row  # noqa: E402
 
 DURATION = 10.0
 
