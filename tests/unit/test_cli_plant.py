@@ -4,8 +4,9 @@ from pathlib import Path
 import subprocess
 import sys
 
-from hydropump_sim.model import OUTPUTS
 import numpy as np
+
+from hydropump_sim.model import OUTPUTS
 
 
 def _run(*args, cwd=None):

@@ -1,11 +1,11 @@
 """Effects real pumps show and the paper leaves out: each switchable, each checked."""
 
-from hydropump_sim.metrics import step_figures
-from hydropump_sim.scaling import current_for_displacement
 import numpy as np
 import pytest
 
 from hydropump_sim import equilibrium, simulate
+from hydropump_sim.metrics import step_figures
+from hydropump_sim.scaling import current_for_displacement
 
 
 def _staircase_levels(params, levels, hold):

@@ -1,11 +1,11 @@
 """Linear analysis: eq. 16 against eqs. 14/15, eq. 11 DC gain, section IV's check."""
 
 import control
-from hydropump_sim.linear import bode_data, linearize
 import numpy as np
 import pytest
 
 from hydropump_sim import paper_linear, singular_perturbation_check, transfer_matrix
+from hydropump_sim.linear import bode_data, linearize
 
 
 @pytest.mark.parametrize('branch', ['pos', 'neg'])

@@ -5,9 +5,10 @@ from pathlib import Path
 import subprocess
 import sys
 
-from hydropump_sim.params import iter_specs, load_params, ParamError, params_from_dict
 import pytest
 import yaml
+
+from hydropump_sim.params import iter_specs, load_params, ParamError, params_from_dict
 
 from ..conftest import PUMP_YAML, REFERENCE_YAML
 

@@ -1,5 +1,8 @@
 """Scenario files and sensor models."""
 
+import numpy as np
+import pytest
+
 from hydropump_sim.params import ParamError
 from hydropump_sim.scenario import load_scenario, ScenarioError
 from hydropump_sim.sensors import (
@@ -9,8 +12,6 @@ from hydropump_sim.sensors import (
     SensorProfile,
     SensorSpec,
 )
-import numpy as np
-import pytest
 
 from ..conftest import ROOT
 
