@@ -1,0 +1,1 @@
+"""Control: embedded model, EMC, PI baseline, excitation signals, schema and design."""

@@ -1,0 +1,194 @@
+"""Embedded Model Control (Canuto) of the pump: flow tracking and load-sensing margin control.
+
+The structure, in the terms of EMC:
+
+- **Embedded model** (:mod:`.embedded`): the discrete-time simplified dynamics from the command
+  to the flow (eq. 19 with the spool stroke limit, the falling-flow branch and its zero), with
+  a random-walk **disturbance** ``d`` [m^3/s] at the command that collects what the model
+  leaves out (gain and shaft-speed errors, leakage, friction), and the known measurement
+  **delay** ``t_d`` as a delay line of ``N`` commands. For the margin, the line of eq. 9 with
+  the load conductance ``k = mu_u xi_u`` as a second random-walk disturbance.
+- **Noise estimator**: static gains on the model error (flow: delayed sample against the
+  delayed model; margin: the undelayed pressure difference). The flow estimator runs on the
+  delayed time axis, and a predictor rolls the corrected model forward over the ``N`` stored
+  commands to the present, so the delay stays out of the estimator's eigenvalues.
+- **Control law**: a reference generator (the nominal model driven toward the reference with
+  its own eigenvalue, inside the spool stroke limit, and inverted through the branch-aware model
+  for the feedforward), state feedback on the predicted tracking error, and cancellation of the
+  estimated disturbance. In margin mode the flow target is ``k_hat dp_r^(1/gamma_u)``: the
+  load conductance is cancelled, so the loop gain does not depend on the load aperture.
+- **Anti-windup**: the embedded model is fed the applied command (after the current range and
+  the rate limit); the disturbance does not integrate while the model says it cannot act (spool
+  at its stroke limit for a whole step, plate at an end stop) and stays inside
+  ``emc.disturbance_max``; the flow target is kept inside the displacement range.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Mapping
+import math
+
+from .base import _value, Controller
+from .design import emc_gains, line_estimator_gains
+from .embedded import LineModel, PumpModel, trajectory_step
+from .schema import ControllerConfig
+
+# Smallest margin the line model works with: 0.1 bar. Below it the load law is laminar
+# (dp_cr_u) and the relative estimator would divide by almost nothing.
+DP_FLOOR = 1.0e4
+Q_FLOOR = 1.0e-9
+
+
+class EMCController(Controller):
+    """Embedded Model Control in flow, margin (load sensing) and open-loop modes.
+
+    Parameters
+    ----------
+    config : ControllerConfig
+        ``model`` is the embedded model, ``emc`` the chosen eigenvalues; see
+        :mod:`hydropump_ctrl.control.design` for the gains they give.
+
+    Notes
+    -----
+    ``state()`` adds, in SI units: ``estimate`` (flow [m^3/s] or margin [Pa], by mode),
+    ``flow_estimate`` (predicted pump flow now), ``flow_trajectory`` (reference generator),
+    ``flow_target``, ``disturbance`` [m^3/s], ``margin_estimate`` and ``margin_trajectory``
+    [Pa], ``load_conductance`` [m^3/(s Pa^(1/gamma_u))].
+    """
+
+    algorithm = 'emc'
+
+    def _configure(self, cfg: ControllerConfig) -> None:
+        self._pump = PumpModel.from_config(cfg.model)
+        self._line = LineModel.from_config(cfg.model)
+        self._gains = emc_gains(cfg)
+        self._use_line_flow = cfg.controller.flow_signal == 'line_flow'
+        if hasattr(self, '_hist') and len(self._hist) != self._gains.N + 1:
+            # update_rate and t_d are read-only, so this only happens on a full reconfigure
+            self._reset(self._command, {})
+
+    # --- helpers ---------------------------------------------------------------------------
+
+    def _model_output(self, Q: float, target: float) -> float:
+        """Measured flow as the model sees it: line flow (with the zero) or pump flow."""
+        return self._pump.line_flow(Q, target) if self._use_line_flow else Q
+
+    def _clip_d(self, d: float) -> float:
+        d_max = self._cfg.emc.disturbance_max
+        return min(max(d, -d_max), d_max)
+
+    def _advance_delayed(self, v: float, dt: float, e: float | None) -> None:
+        """Step the delayed embedded model with the command ``v`` and the model error ``e``
+        (predictor-form noise estimator)."""
+        target = v + self._dm
+        gains = self._gains.branch(target - self._Qm)
+        Q, sensitive = self._pump.step(self._Qm, target, dt)
+        if e is not None:
+            Q += gains.l_Q * e
+            if sensitive:
+                self._dm = self._clip_d(self._dm + gains.l_d * e)
+        self._Qm = min(max(Q, 0.0), self._pump.Q_max)
+
+    # --- hooks -----------------------------------------------------------------------------
+
+    def _reset(self, current: float, meas: Mapping[str, float]) -> None:
+        pump, g = self._pump, self._gains
+        v = pump.flow_command(current)
+        y = _value(meas, self._cfg.controller.flow_signal)
+        Q = pump.steady_flow(current) if y is None else min(max(y, 0.0), pump.Q_max)
+        # A steady state explains the measured flow with the disturbance (eq. 11 offset).
+        self._dm = self._clip_d(Q - v) if 0.0 < Q < pump.Q_max else 0.0
+        self._Qm = self._Qhat = self._Qr = self._Qr_next = Q
+        self._hist = deque([(v, g.T)] * (g.N + 1), maxlen=g.N + 1)
+        self._e = None
+        self._r = Q
+        self._used_law = False
+        p_l, p_u = _value(meas, 'line_pressure'), _value(meas, 'load_pressure')
+        dp = (p_l - p_u) if p_l is not None and p_u is not None else self._refs['margin']
+        self._dp = self._dpr = max(dp, DP_FLOOR)
+        self._q_line = Q
+        self._lnk = math.log(max(Q, Q_FLOOR) / self._dp ** (1.0 / self._line.gamma_u))
+
+    def _observe(self, dt: float, meas: Mapping[str, float]) -> None:
+        g, pump, hist, N = self._gains, self._pump, self._hist, self._gains.N
+        # Flow: the sample of t_k is the plant of t_k-N; compare it with the delayed model.
+        y = _value(meas, self._cfg.controller.flow_signal)
+        e = None
+        if y is not None:
+            e = y - self._model_output(self._Qm, hist[N][0] + self._dm)
+        v_step, dt_step = hist[N - 1]
+        self._advance_delayed(v_step, dt_step, e)
+        # Predictor: roll the corrected model over the stored commands to the present.
+        Q = self._Qm
+        for j in range(N - 2, -1, -1):
+            v_j, dt_j = hist[j]
+            Q = pump.step(Q, v_j + self._dm, dt_j)[0]
+        self._Qhat = Q
+        # Line: the pressure difference is not delayed; correct margin and load conductance.
+        p_l, p_u = _value(meas, 'line_pressure'), _value(meas, 'load_pressure')
+        if p_l is not None and p_u is not None:
+            line = self._line
+            e_rel = (p_l - p_u - self._dp) / self._dp
+            alpha = line.alpha(self._dp, self._q_line, dt)
+            m_p, m_k = line_estimator_gains(alpha, line.gamma_u, g.poles['line_fast'],
+                                            g.poles['line_slow'])
+            self._dp = max(self._dp * (1.0 + m_p * e_rel), DP_FLOOR)
+            self._lnk += m_k * e_rel
+        self._used_law = False
+
+    def _law(self, dt: float) -> float:
+        g, pump = self._gains, self._pump
+        if self.mode == 'margin':
+            a = math.exp(-dt / self._cfg.emc.tau_margin_reference)
+            self._dpr = self._refs['margin'] + (self._dpr - self._refs['margin']) * a
+            # Cancelling the load conductance makes the margin loop the same at any aperture.
+            r = self._line.flow(self._dpr, math.exp(self._lnk))
+        else:
+            r = self._refs['flow']
+        r = min(max(r, 0.0), pump.Q_max)
+        self._r = r
+        Qr_next, v_r = trajectory_step(self._Qr, r, g.k_r, g.reference_limit, pump.tau, dt)
+        if Qr_next < self._Qr:
+            # The trajectory is planned on the slower growing-flow dynamics; falling flow is
+            # faster (eq. 15), so its feedforward comes from the falling-flow branch.
+            v_r = pump.inverse(self._Qr, Qr_next, dt)
+        self._Qr_next = Qr_next
+        self._used_law = True
+        v = v_r + g.k_x * (self._Qr - self._Qhat) - self._dm
+        return pump.current(v)
+
+    def _applied(self, u: float, desired: float, dt: float) -> None:
+        pump = self._pump
+        v = pump.flow_command(u)
+        self._hist.appendleft((v, dt))
+        target = v + self._dm
+        # Line inflow over the next period, with the pilot flow of eq. 17 for falling flow.
+        q_line = pump.line_flow(self._Qhat, target)
+        self._dp = max(self._line.step(self._dp, q_line, math.exp(self._lnk), dt), DP_FLOOR)
+        self._q_line = q_line
+        if self._used_law:
+            self._Qr = self._Qr_next
+        else:
+            # Open loop or fault: the reference generator follows the plant, so that closing
+            # the loop again starts from where the flow is (bumpless).
+            self._Qr = pump.step(self._Qhat, target, dt)[0]
+        if self.mode != 'margin' or not self._used_law:
+            self._dpr = self._dp
+
+    def _on_mode(self, old: str, new: str) -> None:
+        # Every state runs in every mode, so a switch needs no re-initialisation: the
+        # trajectories start from the present estimates.
+        if new == 'margin':
+            self._dpr = self._dp
+
+    def _estimate(self, mode: str) -> float | None:
+        return self._Qhat if mode == 'flow' else self._dp
+
+    def _state(self) -> dict:
+        return {
+            'estimate': self._dp if self.mode == 'margin' else self._Qhat,
+            'flow_estimate': self._Qhat, 'flow_trajectory': self._Qr, 'flow_target': self._r,
+            'disturbance': self._dm, 'margin_estimate': self._dp,
+            'margin_trajectory': self._dpr, 'load_conductance': math.exp(self._lnk),
+        }
