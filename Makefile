@@ -5,8 +5,9 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.hydropump-installed
-PKGS := hydropump_sim hydropump_ctrl
-SETUP_FILES := requirements.txt $(foreach p,$(PKGS),$(p)/setup.py $(p)/package.xml)
+PKGS := hydropump_sim hydropump_ctrl ros_pkgs/hydropump_ros
+SETUP_FILES := requirements.txt $(foreach p,$(PKGS) ros_pkgs/hydropump_bringup,$(p)/setup.py \
+	$(p)/package.xml)
 
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
@@ -21,6 +22,7 @@ $(STAMP): $(SETUP_FILES)
 	$(BIN)/python -m pip install --quiet --no-build-isolation --no-deps \
 		--config-settings editable_mode=compat \
 		$(foreach p,$(PKGS),-e $(p))
+	$(BIN)/python -m hydropump_ros.venv_index --root . > /dev/null
 	touch $@
 
 demo: $(STAMP)

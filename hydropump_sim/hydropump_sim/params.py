@@ -294,6 +294,11 @@ def check_value(s: ParamSpec, value: Any) -> tuple[Any, str | None]:
         if isinstance(value, str) and (s.choices is None or value in s.choices):
             return value, None
         return None, f'{s.name} = {value!r}: expected one of {", ".join(s.choices or ())}'
+    if s.type is int:
+        lo, hi = s.range
+        if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+            return None, f'{s.name} = {value!r}: expected an integer in [{lo}, {hi}]'
+        return value, None
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         hint = ''
         if isinstance(value, str):
@@ -457,14 +462,20 @@ def load_params(path: str | Path) -> Params:
 
 
 def default_params_path() -> Path:
-    """The reference parameter file: ``$HYDROPUMP_PARAMS``, the repo's or the installed copy."""
+    """The reference plant file: ``$HYDROPUMP_PARAMS``, the source tree's ``config/pump.yaml``,
+    or the copy installed with ``hydropump_bringup`` (found through ``AMENT_PREFIX_PATH`` or the
+    Python prefix, without importing ROS)."""
     import os
+    import sys
     env = os.environ.get('HYDROPUMP_PARAMS')
     if env:
         return Path(env)
     here = Path(__file__).resolve()
-    for cand in (here.parents[2] / 'config' / 'pump.yaml',
-                 here.parent / 'data' / 'pump.yaml'):
+    candidates = [here.parents[2] / 'config' / 'pump.yaml']
+    prefixes = [p for p in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep) if p]
+    for prefix in prefixes + [sys.prefix]:
+        candidates.append(Path(prefix) / 'share' / 'hydropump_bringup' / 'config' / 'pump.yaml')
+    for cand in candidates:
         if cand.is_file():
             return cand
     raise ParamError(['no parameter file found: pass one, or set HYDROPUMP_PARAMS'])

@@ -285,15 +285,18 @@ class Simulator:
         self._p = pack(params, model)
         self.stats = np.zeros(2, dtype=np.int64)
         self.u = operating_inputs(params)
+        self.t = 0.0
+        self.steps = 0
         self.reset()
 
-    def reset(self, current: float | None = None) -> None:
-        """Return to the equilibrium at the parameter file's operating point, ``t = 0``."""
+    def reset(self, current: float | None = None, keep_time: bool = False) -> None:
+        """Return to the equilibrium at the parameter file's operating point (and ``current``,
+        absolute A); time restarts at 0 unless ``keep_time``."""
         self.u = operating_inputs(params=self.params, current=current)
         self.x = equilibrium(self.params, current, model=self.model).x.copy()
-        self.x0 = self.x.copy()
-        self.t = 0.0
-        self._k = 0
+        if not keep_time:
+            self.t = 0.0
+            self.steps = 0
         self._h = self.dt
 
     def set_inputs(self, current: float | None = None, load_pressure: float | None = None,
@@ -312,7 +315,7 @@ class Simulator:
     def step(self) -> None:
         """Advance one increment ``dt``; raise :class:`IntegrationError` on failure (the
         state is then left at the start of the increment)."""
-        t0 = self._k * self.dt
+        t0 = self.steps * self.dt
         x = self.x.copy()
         cfg = self.config
         h, status = c.advance(t0, t0 + self.dt, x, self.u, self._p, self._h, cfg.rtol,
@@ -321,8 +324,8 @@ class Simulator:
             raise IntegrationError(f'integration failed at t = {t0:.6g} s (code {status})')
         self.x = x
         self._h = h
-        self._k += 1
-        self.t = self._k * self.dt
+        self.steps += 1
+        self.t = self.steps * self.dt
 
     def outputs(self) -> np.ndarray:
         """Outputs at the current state (``OUTPUTS`` layout, SI)."""

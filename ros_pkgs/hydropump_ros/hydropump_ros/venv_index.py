@@ -1,0 +1,82 @@
+"""Register the suite in the ament index of a Python prefix (the project's ``.venv``).
+
+``colcon build`` installs the ament index marker, ``package.xml``, launch files, config and the
+executables under ``lib/<package>``. An editable pip install does none of that, so ``make``
+runs this module once after installing (links, like ``colcon build --symlink-install``):
+afterwards ``ament_index_python`` finds the packages
+in ``.venv`` and ``<prefix>/lib/hydropump_ros/simulator`` is an executable, as ``ros2 run``
+expects. A ``.pth`` file adds the prefix to ``AMENT_PREFIX_PATH`` for the venv's Python.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+import shutil
+import sys
+import sysconfig
+
+PACKAGES = {
+    'hydropump_sim': 'hydropump_sim',
+    'hydropump_ctrl': 'hydropump_ctrl',
+    'hydropump_ros': 'ros_pkgs/hydropump_ros',
+    'hydropump_bringup': 'ros_pkgs/hydropump_bringup',
+}
+EXECUTABLES = {'hydropump_ros': ('simulator', 'controller', 'recorder', 'hydropump-graph')}
+SHARE_DIRS = {'hydropump_bringup': ('launch', 'config')}
+
+PTH = """import os, sys; p = os.environ.get('AMENT_PREFIX_PATH', ''); \
+os.environ['AMENT_PREFIX_PATH'] = p if sys.prefix in p.split(os.pathsep) \
+else os.pathsep.join(x for x in (p, sys.prefix) if x)
+"""
+
+
+def install(root: Path, prefix: Path) -> list[Path]:
+    """Write the index entries under ``prefix`` for the source tree at ``root``."""
+    written = []
+    index = prefix / 'share' / 'ament_index' / 'resource_index' / 'packages'
+    index.mkdir(parents=True, exist_ok=True)
+    for pkg, rel in PACKAGES.items():
+        src = root / rel
+        (index / pkg).write_text('')
+        share = prefix / 'share' / pkg
+        share.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(src / 'package.xml', share / 'package.xml')
+        written.append(index / pkg)
+        for sub in SHARE_DIRS.get(pkg, ()):
+            dst = share / sub
+            if dst.is_symlink() or dst.is_file():
+                dst.unlink()
+            elif dst.is_dir():
+                shutil.rmtree(dst)
+            # A link, as colcon's --symlink-install: the sources stay the one copy.
+            dst.symlink_to((src / sub).resolve(), target_is_directory=True)
+            written.append(dst)
+        for exe in EXECUTABLES.get(pkg, ()):
+            lib = prefix / 'lib' / pkg
+            lib.mkdir(parents=True, exist_ok=True)
+            link = lib / exe
+            if link.is_symlink() or link.exists():
+                link.unlink()
+            link.symlink_to(os.path.relpath(prefix / 'bin' / exe, lib))
+            written.append(link)
+    pth = Path(sysconfig.get_paths(vars={'base': str(prefix), 'platbase': str(prefix)})
+               ['purelib']) / 'hydropump_ament_prefix.pth'
+    pth.write_text(PTH)
+    written.append(pth)
+    return written
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('--root', default='.', help='source tree (default: current directory)')
+    ap.add_argument('--prefix', default=sys.prefix, help='install prefix (default: this venv)')
+    args = ap.parse_args(argv)
+    for path in install(Path(args.root).resolve(), Path(args.prefix).resolve()):
+        print(f'  {path}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,27 @@
+from setuptools import find_packages, setup
+
+package_name = 'hydropump_ros'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+    ],
+    install_requires=['setuptools', 'hydropump_sim', 'hydropump_ctrl', 'rosbags'],
+    zip_safe=False,
+    maintainer='hydropump developers',
+    maintainer_email='dev@hydropump.invalid',
+    description='ROS 2 nodes of the hydropump suite',
+    license='Apache-2.0',
+    entry_points={
+        'console_scripts': [
+            'simulator = hydropump_ros.simulator_node:main',
+            'controller = hydropump_ros.controller_node:main',
+            'recorder = hydropump_ros.recorder_node:main',
+            'hydropump-graph = hydropump_ros.graph:main',
+        ],
+    },
+)
