@@ -568,11 +568,12 @@ def _robust(u, y, dt, td_b, tau_b, start, n_tau, dither):
                                      method='bounded', options={'xatol': 1e-3})
         starts.append(win.theta(math.exp(r.x), td0))
     if start is not None:
+        # The user's start is one more candidate when it is competitive with the grid:
+        # every basin of the delay is on the grid, so a worse start cannot lead elsewhere.
         tau0 = min(max(start[1], tau_b[0]), tau_b[1])
         td0 = min(max(start[2], td_b[0]), td_b[1])
-        th = win.theta(tau0, td0)
-        th[0] = start[0]
-        starts.append(th)
+        if win.project(tau0, td0)[1] <= 1.01 * P[minima[0]]:
+            starts.append(win.theta(tau0, td0))
     best, nfev = None, int(taus.size * P.size)
     for th0 in starts:
         res = _local_fit(win, th0, lo, hi)
@@ -1123,8 +1124,9 @@ def fit_recording(rec, *, method: str = 'robust', params=None, start=None, td_bo
     flow_f, cur_f = rec.filters.get('flow'), rec.filters.get('current')
     biased = flow_f is not None and flow_f != cur_f
     if biased and not allow_flow_filter:
-        raise FitError(f'{rec.name}: the flow is filtered ({flow_f}) but the current is not: '
-                       'the filter lag biases t_d; filter both signals or neither')
+        raise FitError(f'{rec.name}: the flow alone is filtered ({flow_f}): a filter on one '
+                       'signal changes the current-to-flow relation (a lag adds to t_d); '
+                       'filter both signals or neither')
     u, y = normalise(rec, params)
     fit = fit_fopdt(u, y, rec.dt, method=method, start=start, td_bounds=td_bounds,
                     tau_bounds=tau_bounds, name=rec.name, dither=dither)

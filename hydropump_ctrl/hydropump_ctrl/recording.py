@@ -25,7 +25,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import functools
 import json
-import math
 from pathlib import Path
 from typing import Any
 
@@ -141,12 +140,14 @@ class Recording:
         meta.pop('units', None)
         return cls(**arrays, **meta)
 
-    def lowpass(self, cutoff: float, signals=('current', 'flow'), order: int = 2
-                ) -> Recording:
-        """Zero-phase Butterworth low-pass of the named signals (e.g. to remove dither).
+    def lowpass(self, cutoff: float, signals=('current', 'flow'), order: int = 2,
+                zero_phase: bool = False) -> Recording:
+        """Butterworth low-pass of the named signals (e.g. to remove dither).
 
-        Filtering both signals with the same filter keeps the current-to-flow relation
-        (linear filters commute). Filtering the flow alone does not: the fit refuses it.
+        Causal by default, like a measurement filter; ``zero_phase`` filters forwards and
+        backwards. Filtering both signals with the same filter keeps the current-to-flow
+        relation (linear filters commute). Filtering the flow alone does not (a causal
+        filter's lag adds to ``t_d``): the fit refuses it.
         """
         from scipy import signal as sg
         nyq = 0.5 / self.dt
@@ -158,8 +159,13 @@ class Recording:
         for s in signals:
             if s not in out:
                 raise BagError(f'unknown signal {s!r}: use current or flow')
-            out[s] = sg.sosfiltfilt(sos, out[s])
-            filters[s] = f'butterworth order {order}, {cutoff:g} Hz, zero-phase'
+            if zero_phase:
+                out[s] = sg.sosfiltfilt(sos, out[s])
+            else:
+                # Start from the steady state of the first sample, not from zero.
+                out[s] = sg.sosfilt(sos, out[s], zi=sg.sosfilt_zi(sos) * out[s][0])[0]
+            kind = 'zero-phase' if zero_phase else 'causal'
+            filters[s] = f'butterworth order {order}, {cutoff:g} Hz, {kind}'
         return self._replace(current=out['current'], flow=out['flow'], filters=filters)
 
     def decimate(self, q: int) -> Recording:
@@ -311,24 +317,44 @@ def _stream_mcap(path: Path, want: list[str] | None):
     return topics, streams, complete, where
 
 
+def _metadata(path: Path) -> tuple[dict | None, str]:
+    """``rosbag2_bagfile_information`` of a bag directory, or ``None`` and why not."""
+    import yaml
+    meta = path / 'metadata.yaml'
+    if not meta.is_file():
+        return None, 'no metadata.yaml: the recorder did not finish'
+    try:
+        info = yaml.safe_load(meta.read_text())['rosbag2_bagfile_information']
+        files = [str(f) for f in info['relative_file_paths']]
+        return {**info, 'relative_file_paths': files}, ''
+    except Exception as exc:  # noqa: BLE001 - any YAML or layout problem
+        return None, f'metadata.yaml not usable ({_one_line(exc)}): read the storage files'
+
+
 def _open(path: Path, want: list[str] | None) -> tuple[_Bag, dict]:
-    """Topics and wanted streams of a bag in any of the accepted forms."""
-    from rosbags.rosbag2 import ReaderError
+    """Topics and wanted streams of a bag in any of the accepted forms.
+
+    Storage files are read one by one: MCAP and rosbag2 sqlite3 files describe their own
+    topics, so ``metadata.yaml`` only gives the file order of a split bag (and a killed
+    recorder may not have written it).
+    """
     if path.is_dir():
+        info, why = _metadata(path)
         files = _storage_files(path)
-        has_meta = (path / 'metadata.yaml').is_file()
-        if not has_meta and not files:
+        if info is None and not files:
             raise _not_a_bag(path, 'no metadata.yaml, .mcap or .db3 inside')
-        if has_meta:
-            try:
-                topics, streams = _read_rosbags(path, want)
-                return _Bag(path, topics), streams
-            except (ReaderError, KeyError, ValueError, OSError) as exc:
-                first = exc
-                if not any(f.suffix == '.mcap' for f in files):
-                    raise BagError(f'{path}: cannot read the bag: {_one_line(first)}') from None
-        note = [] if has_meta else ['no metadata.yaml: the recorder did not finish']
-        return _open_files(path, files, want, note)
+        if info is not None:
+            if (info.get('compression_mode') or '').lower() not in ('', 'none'):
+                return _open_compressed(path, want)
+            listed = [path / Path(f).name for f in info['relative_file_paths']]
+            missing = [f.name for f in listed if not f.exists()]
+            present = [f for f in listed if f.exists()]
+            if not present:
+                raise BagError(f'{path}: the storage files of metadata.yaml are missing: '
+                               f'{", ".join(missing)}')
+            notes = [f'storage files missing: {", ".join(missing)}'] if missing else []
+            return _open_files(path, present, want, notes)
+        return _open_files(path, files, want, [why])
     suffix = path.suffix.lower()
     if suffix in ('.mcap', '.db3'):
         return _open_files(path, [path], want, [])
@@ -340,9 +366,17 @@ def _open(path: Path, want: list[str] | None) -> tuple[_Bag, dict]:
     raise _not_a_bag(path)
 
 
+def _open_compressed(path: Path, want) -> tuple[_Bag, dict]:
+    """A compressed bag through the rosbags directory reader (it decompresses)."""
+    try:
+        topics, streams = _read_rosbags(path, want)
+    except Exception as exc:  # noqa: BLE001 - yaml, sqlite3, zstd and rosbags errors
+        raise BagError(f'{path}: cannot read the compressed bag: {_one_line(exc)}') from None
+    return _Bag(path, topics), streams
+
+
 def _open_files(path: Path, files: list[Path], want, notes) -> tuple[_Bag, dict]:
     """Read storage files one by one (split bags), streaming MCAPs that lack a footer."""
-    from rosbags.rosbag2 import ReaderError
     bag = _Bag(path, {}, notes=list(notes))
     streams: dict[str, _Stream] = {}
     for f in files:
@@ -358,7 +392,7 @@ def _open_files(path: Path, files: list[Path], want, notes) -> tuple[_Bag, dict]
                 raise BagError(f'{f}: not an MCAP file (bad magic): corrupt or not a bag')
             try:
                 topics, part = _read_rosbags(f, want)
-            except (ReaderError, ValueError, KeyError, OSError, EOFError):
+            except Exception:  # noqa: BLE001 - no footer, bad index: stream what is there
                 topics, part, complete, where = _stream_mcap(f, want)
                 if not complete:
                     bag.truncated = True
@@ -473,33 +507,40 @@ def _clean(t_ns: np.ndarray, v: np.ndarray, topic: str, where: str, notes: list
 
 
 def _grid(tc, vc, tf, vf, dt, where, notes) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
-    """Common uniform grid: the current held, the flow interpolated."""
+    """Common uniform grid: the current held, the flow interpolated.
+
+    The grid is built in integer nanoseconds, so a flow stamped on the grid is taken as is
+    (interpolation at a node returns the node's value exactly).
+    """
     t0 = int(max(tc[0], tf[0]))
     t1 = int(min(tc[-1], tf[-1]))
     if t1 <= t0:
         raise BagError(f'{where}: the current and flow topics do not overlap in time')
-    xc = (tc - t0) * 1e-9
-    xf = (tf - t0) * 1e-9
     if dt is None:
-        steps = [float(np.median(np.diff(x))) for x in (xc, xf) if x.size > 1]
+        steps = [float(np.median(np.diff(x))) for x in (tc, tf) if x.size > 1]
         if not steps:
             raise BagError(f'{where}: too few messages to find the sample period')
-        dt = max(steps)
-    n = int(math.floor((t1 - t0) * 1e-9 / dt + 1e-6)) + 1
-    t = np.arange(n) * dt
-    for topic, x in (('current', xc), ('flow', xf)):
-        d = np.diff(x[(x >= -0.5 * dt) & (x <= t[-1] + 0.5 * dt)])
+        p_ns = int(round(max(steps)))
+    else:
+        p_ns = int(round(dt * 1e9))
+    if p_ns <= 0:
+        raise BagError(f'{where}: the sample period must be positive')
+    n = (t1 - t0) // p_ns + 1
+    g = t0 + np.arange(n, dtype=np.int64) * p_ns
+    for topic, x in (('current', tc), ('flow', tf)):
+        d = np.diff(x[(x >= t0 - p_ns // 2) & (x <= g[-1] + p_ns // 2)]) / p_ns
         if d.size:
-            gaps = int(np.count_nonzero(d > 1.5 * dt))
+            gaps = int(np.count_nonzero(d > 1.5))
             if gaps:
-                notes.append(f'{topic}: {gaps} gaps (longest {1e3 * d.max():.3g} ms) bridged')
-            jit = float(np.std(d)) / dt
+                notes.append(f'{topic}: {gaps} gaps (longest {p_ns * 1e-6 * d.max():.3g} ms) '
+                             'bridged')
+            jit = float(np.std(d))
             if jit > 0.1:
                 notes.append(f'{topic}: time stamps jitter by {100 * jit:.0f} % of the period')
-    k = np.searchsorted(xc, t + 1e-6 * dt, side='right') - 1
+    k = np.searchsorted(tc, g, side='right') - 1
     cur = vc[np.clip(k, 0, vc.size - 1)]
-    flow = np.interp(t, xf, vf)
-    return t0, t, cur, flow
+    flow = np.interp((g - t0) * 1e-9, (tf - t0) * 1e-9, vf)
+    return t0, (g - t0) * 1e-9, cur, flow
 
 
 def read_recording(path: str | Path, *, current_topic: str = DEFAULT_CURRENT_TOPIC,

@@ -1,0 +1,323 @@
+"""Reading the current and flow of rosbag2 bags (MCAP and sqlite3) into recordings.
+
+Bags are written as the project's recorder writes them (``rosbags``, version 9), as
+``ros2 bag record`` writes them (an MCAP with zstd chunks from ``mcap-ros2-support`` and a
+Jazzy ``metadata.yaml``), cut short, killed with SIGKILL, and corrupted.
+"""
+
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+from hydropump_ctrl.recording import (
+    BagError,
+    list_topics,
+    match_topic,
+    read_recording,
+    Recording,
+    write_bag,
+)
+
+F64 = 'std_msgs/msg/Float64'
+PRESSURE = 'sensor_msgs/msg/FluidPressure'
+T0 = 1_000.0          # s: bags start at a non-zero simulation time
+HASH = 'RIHS01_705ba9c3d1a09df43737eb67095534de36fd426c0587779bda2bc51fe790182a'
+
+
+def _signals(n=4000, dt=1e-3, seed=0):
+    rng = np.random.default_rng(seed)
+    t = T0 + np.arange(n) * dt
+    cur = 0.46 + 0.08 * (np.arange(n) // 500 % 2) + 1e-3 * rng.standard_normal(n)
+    flow = 6e-4 + 1e-5 * rng.standard_normal(n)
+    return t, cur, flow
+
+
+def _contract_bag(path, storage='mcap', ns='', n=4000):
+    """The recorder's topics: Float64 current and flows, FluidPressure with header stamps."""
+    t, cur, flow = _signals(n)
+    p = f'/{ns}' if ns else ''
+    return write_bag(path, {
+        f'{p}/solenoid_current': (F64, t, cur),
+        f'{p}/solenoid_current_cmd': (F64, t, np.round(cur, 2)),
+        f'{p}/line_flow': (F64, t, flow),
+        f'{p}/pump_flow': (F64, t, flow * 1.01),
+        f'{p}/load_flow': (F64, t, flow * 0.99),
+        f'{p}/line_pressure': (PRESSURE, t, 1.5e7 + flow),
+        f'{p}/load_pressure': (PRESSURE, t, 1.2e7 + flow),
+    }, storage=storage), (t, cur, flow)
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_recorder_bag_is_read_exactly(tmp_path, storage):
+    bag, (t, cur, flow) = _contract_bag(tmp_path / 'bag', storage, ns='pump')
+    rec = read_recording(bag)
+    assert rec.topics == {'current': '/pump/solenoid_current', 'flow': '/pump/line_flow'}
+    assert rec.time_source == {'current': 'log', 'flow': 'log'}
+    assert rec.dt == pytest.approx(1e-3, rel=1e-9)
+    assert rec.t0_ns == int(round(T0 * 1e9))
+    np.testing.assert_allclose(rec.t, t - T0, atol=1e-9)
+    np.testing.assert_array_equal(rec.current, cur)
+    np.testing.assert_array_equal(rec.flow, flow)
+    assert not rec.truncated and not rec.notes
+    assert rec.labels['flow'] == 'line flow q_l'
+    # The command topic is selectable; 'solenoid_current' never matched it by suffix.
+    cmd = read_recording(bag, current_topic='solenoid_current_cmd', flow_topic='pump_flow')
+    np.testing.assert_array_equal(cmd.current, np.round(cur, 2))
+    np.testing.assert_array_equal(cmd.flow, flow * 1.01)
+
+
+def test_header_stamps_are_used_where_present(tmp_path):
+    # Log times 3 ms late with jitter; the FluidPressure header carries the sample time.
+    t, cur, flow = _signals(2000)
+    write_bag(tmp_path / 'bag', {'/solenoid_current': (F64, t, cur),
+                                 '/line_pressure': (PRESSURE, t, 1.5e7 + 1e5 * flow)},
+              log_offset_ns=3_000_000)
+    rec = read_recording(tmp_path / 'bag', flow_topic='line_pressure')
+    assert rec.time_source == {'current': 'log', 'flow': 'header'}
+    # The current keeps its (late) log times, the pressure its stamps: the first common
+    # instant is the first current message, which pairs with the fourth pressure sample.
+    n = rec.t.size
+    assert n == 2000 - 3
+    np.testing.assert_array_equal(rec.current, cur[:n])
+    np.testing.assert_array_equal(rec.flow, (1.5e7 + 1e5 * flow)[3:])
+
+
+def test_independent_mcap_like_ros2_bag_record(tmp_path):
+    # zstd-chunked MCAP from mcap-ros2-support and the metadata.yaml Jazzy writes.
+    from mcap_ros2.writer import Writer
+    bag = tmp_path / 'rosbag2_2026_11_22-05_00_00'
+    bag.mkdir()
+    t, cur, flow = _signals(3000)
+    with open(bag / 'rosbag2_2026_11_22-05_00_00_0.mcap', 'wb') as f:
+        w = Writer(f, chunk_size=64 * 1024)
+        schema = w.register_msgdef(F64, 'float64 data')
+        for tk, c, q in zip(t, cur, flow):
+            ns = int(round(tk * 1e9))
+            w.write_message('/solenoid_current', schema, {'data': float(c)}, log_time=ns)
+            w.write_message('/line_flow', schema, {'data': float(q)}, log_time=ns)
+        w.finish()
+    qos = textwrap.indent(textwrap.dedent("""\
+        - history: keep_last
+          depth: 10
+          reliability: reliable
+          durability: volatile
+          deadline: {sec: 9223372036, nsec: 854775807}
+          lifespan: {sec: 9223372036, nsec: 854775807}
+          liveliness: automatic
+          liveliness_lease_duration: {sec: 9223372036, nsec: 854775807}
+          avoid_ros_namespace_conventions: false"""), ' ' * 10)
+    topics = ''.join(f"""
+    - topic_metadata:
+        name: {name}
+        type: std_msgs/msg/Float64
+        serialization_format: cdr
+        offered_qos_profiles:
+{qos}
+        type_description_hash: {HASH}
+      message_count: 3000""" for name in ('/solenoid_current', '/line_flow'))
+    (bag / 'metadata.yaml').write_text(f"""rosbag2_bagfile_information:
+  version: 9
+  storage_identifier: mcap
+  duration:
+    nanoseconds: 2999000000
+  starting_time:
+    nanoseconds_since_epoch: {int(T0 * 1e9)}
+  message_count: 6000
+  topics_with_message_count:{topics}
+  compression_format: ""
+  compression_mode: ""
+  relative_file_paths:
+    - rosbag2_2026_11_22-05_00_00_0.mcap
+  files:
+    - path: rosbag2_2026_11_22-05_00_00_0.mcap
+      starting_time:
+        nanoseconds_since_epoch: {int(T0 * 1e9)}
+      duration:
+        nanoseconds: 2999000000
+      message_count: 6000
+  custom_data: ~
+  ros_distro: jazzy
+""")
+    rec = read_recording(bag)
+    assert rec.t.size == 3000 and not rec.truncated
+    np.testing.assert_array_equal(rec.current, cur)
+    np.testing.assert_array_equal(rec.flow, flow)
+    # The MCAP file alone reads the same.
+    alone = read_recording(bag / 'rosbag2_2026_11_22-05_00_00_0.mcap')
+    np.testing.assert_array_equal(alone.flow, flow)
+
+
+def test_topic_matching_exact_or_unique_suffix():
+    topics = {'/a/line_flow': F64, '/b/line_flow': F64, '/solenoid_current_cmd': F64,
+              '/solenoid_current': F64, '/clock': 'rosgraph_msgs/msg/Clock'}
+    assert match_topic('/a/line_flow', topics) == '/a/line_flow'
+    assert match_topic('a/line_flow', topics) == '/a/line_flow'
+    assert match_topic('solenoid_current', topics) == '/solenoid_current'
+    with pytest.raises(BagError, match=r'ambiguous.*/a/line_flow, /b/line_flow'):
+        match_topic('line_flow', topics)
+    with pytest.raises(BagError, match=r"no topic 'pump_flow'; it has: /a/line_flow"):
+        match_topic('pump_flow', topics)
+    assert match_topic('flow', {'/line_flow': F64, '/flow': F64}) == '/flow'
+    with pytest.raises(BagError):
+        match_topic('flow', {'/line_flow': F64})      # suffixes start at a '/'
+
+
+def test_missing_topic_lists_what_the_bag_has(tmp_path):
+    bag, _ = _contract_bag(tmp_path / 'bag')
+    with pytest.raises(BagError) as err:
+        read_recording(bag, flow_topic='q_flow')
+    msg = str(err.value)
+    assert "no topic 'q_flow'" in msg and '/line_flow (std_msgs/msg/Float64)' in msg
+    assert '/line_pressure (sensor_msgs/msg/FluidPressure)' in msg and '\n' not in msg
+    assert list_topics(bag)['/load_pressure'] == PRESSURE
+
+
+def test_nan_values_are_reported(tmp_path):
+    t, cur, flow = _signals(1000)
+    flow[[400, 401, 900]] = np.nan
+    write_bag(tmp_path / 'bag', {'/solenoid_current': (F64, t, cur),
+                                 '/line_flow': (F64, t, flow)})
+    with pytest.raises(BagError, match=r'line_flow has 3 NaN .*t = 0\.4 s'):
+        read_recording(tmp_path / 'bag')
+
+
+def test_resampling_holds_the_current_and_interpolates_the_flow(tmp_path):
+    # Current at 1 kHz, flow at 500 Hz stamped half a millisecond later, unsorted, one
+    # duplicate stamp.
+    t, cur, _ = _signals(2000)
+    tf = T0 + 0.0005 + np.arange(1000) * 2e-3
+    flow = 1e-4 * np.sin(tf - T0)
+    order = np.random.default_rng(1).permutation(1000)
+    write_bag(tmp_path / 'bag', {'/solenoid_current': (F64, t, cur),
+                                 '/line_flow': (F64, np.r_[tf[order], tf[5]],
+                                                np.r_[flow[order], flow[5]])})
+    rec = read_recording(tmp_path / 'bag')
+    assert rec.dt == pytest.approx(2e-3, rel=1e-9)
+    grid = rec.t + rec.t0_ns * 1e-9
+    np.testing.assert_allclose(rec.flow, 1e-4 * np.sin(grid - T0), atol=2e-10)
+    # Held current: the last value published at or before each grid time.
+    k = np.searchsorted(t, grid + 1e-9, side='right') - 1
+    np.testing.assert_array_equal(rec.current, cur[k])
+    assert any('repeated time stamps' in n for n in rec.notes)
+
+
+def _long_bag(path, seconds=30.0):
+    """A bag of several rosbags chunks (about 12 s of two 1 kHz topics per chunk)."""
+    t = T0 + np.arange(int(seconds * 1000)) * 1e-3
+    cur = 0.46 + 0.08 * ((t - T0) // 0.5 % 2)
+    flow = 6e-4 + 1e-6 * (t - T0)
+    write_bag(path, {'/solenoid_current': (F64, t, cur), '/line_flow': (F64, t, flow)})
+    return t, cur, flow
+
+
+def test_mcap_cut_short_is_read_up_to_its_last_whole_chunk(tmp_path):
+    t, cur, flow = _long_bag(tmp_path / 'bag')
+    mcap = tmp_path / 'bag' / 'bag.mcap'
+    data = mcap.read_bytes()
+    for with_metadata in (True, False):
+        cut = tmp_path / f'cut{with_metadata}'
+        cut.mkdir()
+        (cut / 'bag.mcap').write_bytes(data[:int(0.8 * len(data))])
+        if with_metadata:
+            (cut / 'metadata.yaml').write_text((tmp_path / 'bag' / 'metadata.yaml').read_text())
+        rec = read_recording(cut)
+        assert rec.truncated and 'no footer' in rec.truncation
+        assert 5.0 < rec.duration < 29.0
+        np.testing.assert_array_equal(rec.current, cur[:rec.t.size])
+        np.testing.assert_array_equal(rec.flow, flow[:rec.t.size])
+        assert with_metadata or any('metadata.yaml' in n for n in rec.notes)
+    # Cut inside the first chunk: nothing readable, a clear error.
+    bad = tmp_path / 'tiny.mcap'
+    bad.write_bytes(data[:5000])
+    with pytest.raises(BagError, match='truncated'):
+        read_recording(bad)
+
+
+RECORDER = """
+import sys, time
+import numpy as np
+from hydropump_ctrl.recording import _typestore
+from rosbags.rosbag2 import StoragePlugin, Writer
+ts = _typestore()
+F = ts.types['std_msgs/msg/Float64']
+w = Writer(sys.argv[1], version=9, storage_plugin=StoragePlugin.MCAP)
+w.open()
+c_cur = w.add_connection('/solenoid_current', 'std_msgs/msg/Float64', typestore=ts)
+c_flow = w.add_connection('/line_flow', 'std_msgs/msg/Float64', typestore=ts)
+for k in range(40000):
+    ns = 1_000_000_000_000 + k * 1_000_000
+    w.write(c_cur, ns, ts.serialize_cdr(F(data=0.46 + 0.08 * (k // 500 % 2)), F.__msgtype__))
+    w.write(c_flow, ns, ts.serialize_cdr(F(data=6e-4 + 1e-9 * k), F.__msgtype__))
+print('recorded', flush=True)
+time.sleep(60)
+"""
+
+
+def test_recorder_killed_with_sigkill(tmp_path):
+    bag = tmp_path / 'killed'
+    proc = subprocess.Popen([sys.executable, '-c', RECORDER, str(bag)],
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == 'recorded'
+    finally:
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=10)
+    assert not (bag / 'metadata.yaml').exists()
+    rec = read_recording(bag)
+    assert rec.truncated and 'no footer' in rec.truncation
+    assert rec.t.size > 10000
+    k = np.arange(rec.t.size)
+    np.testing.assert_allclose(rec.flow, 6e-4 + 1e-9 * k, rtol=0, atol=1e-15)
+
+
+def test_broken_inputs_give_one_line_errors(tmp_path):
+    cases = {}
+    (tmp_path / 'notes.txt').write_text('hello')
+    cases['notes.txt'] = 'is not a rosbag2 bag'
+    (tmp_path / 'empty').mkdir()
+    cases['empty'] = 'is not a rosbag2 bag'
+    (tmp_path / 'junk.mcap').write_bytes(os.urandom(4096))
+    cases['junk.mcap'] = 'not an MCAP file'
+    (tmp_path / 'junk.db3').write_bytes(os.urandom(4096))
+    cases['junk.db3'] = 'not an SQLite database'
+    cases['missing'] = 'no such file or directory'
+    bag, _ = _contract_bag(tmp_path / 'sq', 'sqlite3')
+    db = next(Path(bag).glob('*.db3'))
+    db.write_bytes(db.read_bytes()[:len(db.read_bytes()) // 3])
+    cases['sq'] = 'cannot read'
+    for name, expect in cases.items():
+        with pytest.raises(BagError) as err:
+            read_recording(tmp_path / name)
+        msg = str(err.value)
+        assert expect in msg and '\n' not in msg, (name, msg)
+
+
+def test_unreadable_metadata_falls_back_to_the_mcap(tmp_path):
+    bag, (_, cur, _) = _contract_bag(tmp_path / 'bag')
+    (bag / 'metadata.yaml').write_text('rosbag2_bagfile_information: [unclosed\n')
+    rec = read_recording(bag)
+    np.testing.assert_array_equal(rec.current, cur)
+    assert not rec.truncated and any('metadata.yaml' in n for n in rec.notes)
+
+
+def test_saved_recording_round_trip(tmp_path):
+    t, cur, flow = _signals(500)
+    rec = Recording(t=t - T0, current=cur, flow=flow, name='r1', source='x',
+                    notes=['a note'], truncated=True, truncation='cut')
+    path = rec.save(tmp_path / 'r1.npz')
+    back = read_recording(path)
+    np.testing.assert_array_equal(back.current, cur)
+    np.testing.assert_array_equal(back.t, t - T0)
+    assert back.notes == ['a note'] and back.truncated and back.truncation == 'cut'
+    assert back.units == {'t': 's', 'current': 'A', 'flow': 'm^3/s'}
+    half = back.decimate(2)
+    assert half.dt == pytest.approx(2e-3) and half.t.size == 250
+    (tmp_path / 'bad.npz').write_bytes(b'not a zip')
+    with pytest.raises(BagError, match='not a saved recording'):
+        read_recording(tmp_path / 'bad.npz')
