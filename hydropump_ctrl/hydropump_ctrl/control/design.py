@@ -5,12 +5,14 @@ Every EMC gain here comes from an eigenvalue chosen in the ``emc`` group (as a c
 constant ``tau``, i.e. the discrete pole ``exp(-T/tau)``):
 
 - reference generator: ``k_r`` puts the pole of the nominal model under the law
-  ``v_r = Q_r + k_r (r - Q_r)`` at ``exp(-T/tau_reference)``;
+  ``v_r = Q_r + k_r (r - Q_r)`` at ``exp(-T/tau_reference)`` (``k_r_margin`` at
+  ``exp(-T/tau_margin_flow)`` in margin mode, where the flow target moves with the estimated
+  load conductance: disturbance rejection wants the faster trajectory);
 - state feedback: ``k_x`` puts the tracking-error pole at ``exp(-T/tau_control)``;
 - noise estimator (flow): ``(l_Q, l_d)`` put the two eigenvalues of the flow state and the
   random-walk disturbance at ``exp(-T/tau_estimator_fast)`` and ``exp(-T/tau_estimator_slow)``,
   once for each branch of the embedded model (eqs. 14 and 15 with its zero);
-- noise estimator (line): ``(m_p, m_k)`` put the eigenvalues of the margin and the load
+- noise estimator (line): ``(l_p, l_k)`` put the eigenvalues of the margin and the load
   conductance at ``exp(-T/tau_line_fast)``, ``exp(-T/tau_line_slow)``, recomputed each update
   from the line pole of the current operating point, so one tuning holds over the whole
   aperture range.
@@ -73,6 +75,7 @@ class EmcGains:
     T: float
     N: int
     k_r: float
+    k_r_margin: float
     k_x: float
     up: BranchGains
     down: BranchGains
@@ -103,27 +106,28 @@ def emc_gains(cfg: ControllerConfig, T: float | None = None) -> EmcGains:
     poles = {'reference': p_r, 'control': p_c, 'estimator_fast': p_est[0],
              'estimator_slow': p_est[1], 'line_fast': pole(e.tau_line_fast, T),
              'line_slow': pole(e.tau_line_slow, T), 'margin_reference':
-             pole(e.tau_margin_reference, T)}
+             pole(e.tau_margin_reference, T), 'margin_flow': pole(e.tau_margin_flow, T)}
     return EmcGains(T=T, N=max(1, int(round(m.t_d / T))), k_r=(1.0 - p_r) / (1.0 - a_up),
+                    k_r_margin=(1.0 - poles['margin_flow']) / (1.0 - a_up),
                     k_x=(a_up - p_c) / (1.0 - a_up), up=up, down=down,
                     reference_limit=e.reference_headroom * m.flow_error_max, poles=poles)
 
 
 def line_estimator_gains(alpha: float, gamma: float, p1: float, p2: float
                          ) -> tuple[float, float]:
-    """Current-form gains ``(m_p, m_k)`` of the margin and load-conductance estimator.
+    """Predictor-form gains ``(l_p, l_k)`` of the margin and load-conductance estimator.
 
     Linearised in relative terms (``p = d(dp)/dp``, ``kappa = d(ln k)``) the line is
-    ``p+ = alpha p + (1 - alpha) gamma (q - kappa)``, ``kappa+ = kappa``, measured ``p``. The
-    predictor gains ``L`` place ``eig(Phi - L C)`` at ``p1, p2``; the current-form gains
-    ``M = Phi^-1 L`` correct the estimate with the newest sample before it is used.
+    ``p+ = alpha p + (1 - alpha) gamma (q - kappa)``, ``kappa+ = kappa``, measured ``p``; the
+    gains place ``eig(Phi - L C)`` at ``p1, p2``. The load conductance is a random walk, so its
+    one-step prediction ``kappa + l_k e`` is also its best present estimate, which the control
+    law uses at once. Well defined for a fast line (``alpha -> 0``, quasi-static) and up to
+    ``alpha = 0.98``.
     """
-    alpha = min(max(alpha, 1.0e-6), 0.98)
+    alpha = min(max(alpha, 0.0), 0.98)
     l_p = alpha + 1.0 - p1 - p2
     l_k = ((alpha - l_p) - p1 * p2) / (gamma * (1.0 - alpha))
-    # M = Phi^-1 L with Phi = [[alpha, -gamma (1 - alpha)], [0, 1]], in closed form: this runs
-    # at every update.
-    return (l_p + gamma * (1.0 - alpha) * l_k) / alpha, l_k
+    return l_p, l_k
 
 
 # --- linear analysis ------------------------------------------------------------------------

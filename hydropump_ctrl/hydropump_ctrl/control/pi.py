@@ -67,7 +67,7 @@ class Pid:
         return g.p / g.i if g.i > 0.0 else math.inf
 
     def command(self, error: float, dt: float, u_ff: float) -> float:
-        """Unsaturated command ``u_ff + p e + I + d de/dt``, then ``u_clamp`` [A]."""
+        """Unsaturated command ``u_ff + p e + I + d de/dt`` [A] (before ``u_clamp``)."""
         g = self.gains
         de = 0.0 if self.e_last is None else (error - self.e_last) / dt
         self.e_last = error
@@ -215,9 +215,11 @@ class PIController(Controller):
             return self._command
         pid = self._pid[mode]
         self._error = r_m - y
-        self._u_unsat = pid.clamp(pid.command(self._error, dt, u_ff))
-        self._active = y is not None
-        return self._u_unsat
+        # The anti-windup compares the applied command with this unclamped one, so u_clamp,
+        # the current range and the rate limit all count as saturation.
+        self._u_unsat = pid.command(self._error, dt, u_ff)
+        self._active = True
+        return pid.clamp(self._u_unsat)
 
     def _applied(self, u: float, desired: float, dt: float) -> None:
         if self._active:

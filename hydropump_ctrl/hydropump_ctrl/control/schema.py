@@ -126,19 +126,22 @@ class Emc:
     reference_headroom: float = spec('-', 'fraction of the spool stroke limit the reference '
                                      'trajectory may use', 0.05, 1.0, default=1.0, live=True)
     tau_control: float = spec('s', 'state-feedback eigenvalue (tracking error)', 1.0e-3, 5.0,
-                              default=0.03, live=True)
+                              default=0.01, live=True)
     tau_estimator_fast: float = spec('s', 'faster noise-estimator eigenvalue (flow state and '
-                                     'disturbance)', 1.0e-3, 5.0, default=0.03, live=True)
+                                     'disturbance)', 1.0e-3, 5.0, default=0.035, live=True)
     tau_estimator_slow: float = spec('s', 'slower noise-estimator eigenvalue (flow state and '
                                      'disturbance)', 1.0e-3, 5.0, default=0.06, live=True)
     disturbance_max: float = spec('m^3/s', 'bound of the disturbance estimate (anti-windup)',
                                   0.0, 1.0e-2, default=3.0e-4, live=True)
     tau_margin_reference: float = spec('s', 'margin set-point trajectory eigenvalue', 1.0e-3,
                                        5.0, default=0.04, live=True)
+    tau_margin_flow: float = spec('s', 'reference generator eigenvalue of the flow trajectory '
+                                  'in margin mode (load-conductance cancellation)', 1.0e-3, 5.0,
+                                  default=0.01, live=True)
     tau_line_fast: float = spec('s', 'faster line-estimator eigenvalue (margin and load '
-                                'conductance)', 1.0e-3, 5.0, default=0.01, live=True)
+                                'conductance)', 1.0e-3, 5.0, default=0.005, live=True)
     tau_line_slow: float = spec('s', 'slower line-estimator eigenvalue (margin and load '
-                                'conductance)', 1.0e-3, 5.0, default=0.015, live=True)
+                                'conductance)', 1.0e-3, 5.0, default=0.008, live=True)
 
 
 def _pi_fields(unit_e: str, what: str, p: float, i: float, ff: float, ref_tau: float,
@@ -360,7 +363,7 @@ def _cross_checks(c: ControllerConfig, lo_hi: tuple[float, float] | None) -> lis
                    f' = {m.Q_max:g} m^3/s (a value in L/min?)')
     T = c.period
     for name in ('tau_reference', 'tau_control', 'tau_estimator_fast', 'tau_estimator_slow',
-                 'tau_margin_reference', 'tau_line_fast', 'tau_line_slow'):
+                 'tau_margin_reference', 'tau_margin_flow', 'tau_line_fast', 'tau_line_slow'):
         v = getattr(e, name)
         if v < T:
             out.append(f'emc.{name} = {v:g} s is faster than the update period {T:g} s '
