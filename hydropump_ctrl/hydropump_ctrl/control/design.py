@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 import math
+import warnings
 
 import control
 import numpy as np
@@ -227,7 +228,11 @@ def loop_margins(L, n: int = 20000) -> Margins:
     """
     T = L.dt
     w = np.logspace(-2, math.log10(math.pi / T * (1.0 - 1e-6)), n)
-    H = np.asarray(control.frequency_response(L, w).complex).ravel()
+    with warnings.catch_warnings():
+        # scipy flags the delay line's leading zeros as badly conditioned; the state-space
+        # evaluation below does not use those coefficients.
+        warnings.simplefilter('ignore')
+        H = np.asarray(control.frequency_response(L, w).complex).ravel()
     mag = np.abs(H)
     ph = np.unwrap(np.angle(H))
     pm, dm, wgc = math.inf, math.inf, math.nan
@@ -249,8 +254,10 @@ def loop_margins(L, n: int = 20000) -> Margins:
         mi = mag[i] + f * (mag[i + 1] - mag[i])
         if mi > 0.0 and 1.0 / mi < gm:
             gm, wpc = 1.0 / mi, w[i] + f * (w[i + 1] - w[i])
-    cl = control.feedback(L, 1)
-    stable = bool(np.all(np.abs(control.poles(cl)) < 1.0))
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        cl = control.feedback(L, 1)
+        stable = bool(np.all(np.abs(control.poles(cl)) < 1.0))
     return Margins(20.0 * math.log10(gm) if math.isfinite(gm) else math.inf, pm, dm, wgc, wpc,
                    stable)
 
@@ -268,10 +275,62 @@ def pi_flow_margins(cfg: ControllerConfig, branch: str = 'up', **plant) -> Margi
     return loop_margins(C * flow_plant_lti(cfg, branch, **plant))
 
 
+def emc_margin_lti(cfg: ControllerConfig, alpha_l: float) -> control.StateSpace:
+    """The margin-mode EMC, linearised in relative units, from the measured margin to the
+    command.
+
+    Variables are relative deviations at the operating point: flow ``q = dQ/Q``, margin
+    ``p = d(dp)/dp``, load conductance ``kappa = d(ln k)``, command ``v = dv/Q``. In margin mode
+    the pump model runs open loop (it is not corrected by the delayed flow), the line estimator
+    corrects the margin and the conductance, the flow target is ``kappa_hat + p_r/gamma`` and the
+    reference generator, the feedforward and the state feedback act as in flow mode (growing
+    branch). ``alpha_l`` is the line pole ``exp(-T/tau_l)`` of the operating point: the only
+    trace of the aperture left after the relative scaling.
+    """
+    g = emc_gains(cfg)
+    gamma = cfg.model.gamma_u
+    a = g.up.alpha
+    l_p, l_k = line_estimator_gains(alpha_l, gamma, g.poles['line_fast'], g.poles['line_slow'])
+    kr = g.k_r_margin
+
+    def f(x, y):
+        Qh, ph, kh, Qr = x
+        e = y - ph
+        kh2 = kh + l_k * e
+        r = kh2                       # + p_r/gamma, constant
+        v_r = Qr + kr * (r - Qr)
+        Qr2 = Qr + (1.0 - a) * (v_r - Qr)
+        v = v_r + g.k_x * (Qr - Qh)
+        ph2 = (alpha_l * ph + (1.0 - alpha_l) * gamma * (Qh - kh2)
+               + (l_p + gamma * (1.0 - alpha_l) * l_k) * e)
+        Qh2 = a * Qh + (1.0 - a) * v
+        return np.array([Qh2, ph2, kh2, Qr2]), v
+
+    return _probe(f, 4, g.T)
+
+
+def margin_plant_lti(cfg: ControllerConfig, alpha_l: float, gain: float = 1.0,
+                     tau_scale: float = 1.0) -> control.StateSpace:
+    """Pump and line from the relative command to the relative margin (eqs. 14 and 9), sampled;
+    the margin is measured without delay."""
+    T, gamma = cfg.period, cfg.model.gamma_u
+    a = math.exp(-T / (cfg.model.tau * tau_scale))
+    A = np.array([[a, 0.0], [(1.0 - alpha_l) * gamma, alpha_l]])
+    B = np.array([[gain * (1.0 - a)], [0.0]])
+    return control.ss(A, B, np.array([[0.0, 1.0]]), np.zeros((1, 1)), T)
+
+
+def emc_margin_margins(cfg: ControllerConfig, alpha_l: float, **plant) -> Margins:
+    """Loop margins of the margin-mode EMC at a line pole ``alpha_l``."""
+    return loop_margins(-emc_margin_lti(cfg, alpha_l) * margin_plant_lti(cfg, alpha_l, **plant))
+
+
 def closed_loop_eigenvalues(cfg: ControllerConfig, branch: str = 'up') -> np.ndarray:
     """Eigenvalues (z-plane) of the nominal flow loop: EMC on the linear model with delay."""
-    L = -emc_flow_lti(cfg, branch) * flow_plant_lti(cfg, branch)
-    return np.sort_complex(control.poles(control.feedback(L, 1)))
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        L = -emc_flow_lti(cfg, branch) * flow_plant_lti(cfg, branch)
+        return np.sort_complex(control.poles(control.feedback(L, 1)))
 
 
 # --- design from the plant ------------------------------------------------------------------

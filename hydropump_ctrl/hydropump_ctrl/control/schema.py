@@ -512,15 +512,20 @@ def dump_ros_yaml(flat: Mapping[str, Any], header: str = '',
 
 
 def _yaml_float(v: float) -> str:
-    """A float that YAML 1.1 (PyYAML, rclpy) reads back as a float, never as text."""
+    """A float that YAML 1.1 (PyYAML, rclpy) reads back as a float, never as text.
+
+    Ten significant digits; a mantissa always has a dot and an exponent always a sign, because
+    YAML 1.1 reads ``1e-5`` as a string.
+    """
     if math.isinf(v):
         return '.inf' if v > 0 else '-.inf'
-    text = repr(float(v))
-    if 'e' in text and '.' not in text.split('e')[0]:
-        mant, exp = text.split('e')
-        text = f'{mant}.0e{exp}'
+    text = f'{float(v):.10g}'
     if 'e' in text:
         mant, exp = text.split('e')
-        sign = exp[0] if exp[0] in '+-' else '+'
-        text = f'{mant}e{sign}{exp.lstrip("+-")}'
+        if '.' not in mant:
+            mant += '.0'
+        sign = '-' if exp.startswith('-') else '+'
+        text = f'{mant}e{sign}{exp.lstrip("+-").lstrip("0") or "0"}'
+    elif '.' not in text and 'n' not in text:
+        text += '.0'
     return text

@@ -1,0 +1,378 @@
+"""The judged closed-loop cases of issue 4, shared by the tests, ``hydropump closed-loop``, the
+benchmark and docs/control.md.
+
+Every case builds its own run on :func:`hydropump_ctrl.closed_loop.run_closed_loop` (fine model,
+sensor profile, controller at its rate) and returns the run with its figures in SI units.
+:func:`target_table` runs them all for EMC and the PI baseline and checks the targets.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import itertools
+import math
+
+import numpy as np
+
+from hydropump_sim.params import Params
+from hydropump_sim.sensors import SensorProfile
+
+from ..closed_loop import (
+    ClosedLoopResult,
+    disturbance_figures,
+    Event,
+    PlantVariation,
+    run_closed_loop,
+    tone_amplitude,
+)
+from .base import Controller
+
+NOMINAL = PlantVariation()
+
+
+@dataclass
+class CaseResult:
+    """One judged case: its name, the run and its figures (SI, percent only in names)."""
+
+    name: str
+    result: ClosedLoopResult
+    figures: dict
+
+
+def quasi_static_margin(dp: float, xi0: float, xi1: float, gamma: float) -> float:
+    """Margin right after an aperture step with the pump flow unchanged (eq. 9 at rest):
+    ``dp (xi0/xi1)^gamma`` [Pa] -- the dip no controller can avoid, as the flow cannot move in
+    the few milliseconds the line pressure needs to settle."""
+    return dp * (xi0 / xi1) ** gamma
+
+
+def flow_step_case(controller: Controller, params: Params, profile: SensorProfile, r0: float,
+                   r1: float, variation: PlantVariation = NOMINAL,
+                   duration: float = 0.8, t_step: float = 0.1) -> CaseResult:
+    """Flow reference step ``r0 -> r1`` [m^3/s]: rise, overshoot, 2 % settling, error."""
+    res = run_closed_loop(controller, duration, [Event(t_step, 'reference', r1, 'flow')],
+                          params=params, profile=profile, variation=variation,
+                          start_flow=r0, mode='flow')
+    f = res.step('q_l', t_step, r0, r1)
+    q = res.smooth('q_l')
+    ess = float(abs(np.mean(q[res.t >= res.t[-1] - 0.1]) - r1))
+    return CaseResult(f'flow step {r0 / params.Q_max:.0%} -> {r1 / params.Q_max:.0%}, '
+                      f'{variation.label}', res,
+                      {'rise': f.rise, 'overshoot': f.overshoot, 'undershoot': f.undershoot,
+                       'settling': f.settling, 'steady_error': ess,
+                       'iae': float(np.trapezoid(np.abs(q - np.where(res.t >= t_step, r1, r0)),
+                                                 res.t))})
+
+
+def aperture_case(controller: Controller, params: Params, profile: SensorProfile, dp: float,
+                  xi0: float, factor: float, duration: float = 0.6, t_step: float = 0.1,
+                  band: float = 1.0e5) -> CaseResult:
+    """Load aperture step ``xi0 -> factor xi0`` in margin mode at the set-point ``dp`` [Pa].
+
+    Figures: ``peak`` deviation, ``beyond`` the unavoidable quasi-static dip, ``recovery``
+    into ``+-band``, ``iae`` [Pa s] and ``ripple`` (peak-to-peak at the end) of the
+    dither-free margin.
+    """
+    xi1 = xi0 * factor
+    res = run_closed_loop(controller, duration, [Event(t_step, 'aperture', xi1)],
+                          params=params, profile=profile, start_margin=dp, aperture=xi0,
+                          mode='margin')
+    qs = quasi_static_margin(dp, xi0, xi1, params.line.gamma_u)
+    f = disturbance_figures(res.t, res.smooth('margin'), t_step, dp, band, qs)
+    return CaseResult(f'aperture {xi0:g} -> {xi1:.3g} at {dp / 1e5:g} bar', res,
+                      {'peak': f.peak, 'overshoot': f.overshoot, 'quasi_static': qs - dp,
+                       'beyond': f.beyond, 'recovery': f.recovery, 'iae': f.iae,
+                       'ripple': f.ripple})
+
+
+def setpoint_case(controller: Controller, params: Params, profile: SensorProfile,
+                  dp0: float = 2.0e6, dp1: float = 2.5e6, xi: float = 0.5,
+                  duration: float = 0.7, t_step: float = 0.1) -> CaseResult:
+    """Margin set-point step ``dp0 -> dp1`` [Pa]: rise, overshoot, settling into +-0.5 bar."""
+    res = run_closed_loop(controller, duration, [Event(t_step, 'reference', dp1, 'margin')],
+                          params=params, profile=profile, start_margin=dp0, aperture=xi,
+                          mode='margin')
+    f = res.step('margin', t_step, dp0, dp1, band_abs=0.5e5)
+    return CaseResult(f'margin set-point {dp0 / 1e5:g} -> {dp1 / 1e5:g} bar at xi {xi:g}',
+                      res, {'rise': f.rise, 'overshoot': f.overshoot,
+                            'settling': f.settling, 'iae': f.iae})
+
+
+def load_pressure_case(controller: Controller, params: Params, profile: SensorProfile,
+                       dp: float, xi: float, step: float, duration: float = 0.5,
+                       t_step: float = 0.1, band: float = 1.0e5) -> CaseResult:
+    """Load pressure step ``P_u -> P_u + step`` [Pa] in margin mode at the set-point ``dp``.
+
+    The line pressure cannot jump (line capacitance), so the margin moves by ``-step`` at once
+    and comes back by itself within the line time constant if the flow is left alone.
+    """
+    P_u0 = params.line.P_u
+    res = run_closed_loop(controller, duration, [Event(t_step, 'load_pressure', P_u0 + step)],
+                          params=params, profile=profile, start_margin=dp, aperture=xi,
+                          mode='margin')
+    f = disturbance_figures(res.t, res.smooth('margin'), t_step, dp, band)
+    return CaseResult(f'load pressure {step / 1e5:+g} bar at xi {xi:g}, {dp / 1e5:g} bar', res,
+                      {'peak': f.peak, 'overshoot': f.overshoot, 'recovery': f.recovery,
+                       'iae': f.iae, 'ripple': f.ripple})
+
+
+def unreachable_case(controller: Controller, params: Params, profile: SensorProfile,
+                     r0: float, r_high: float, hold: float = 1.0, t_step: float = 0.1,
+                     after: float = 0.6) -> CaseResult:
+    """Flow demand ``r_high`` beyond full displacement for ``hold`` s, then back to ``r0``.
+
+    Figures after the release: ``recovery`` into +-1 % of full scale and ``undershoot`` below
+    ``r0`` [m^3/s].
+    """
+    t_rel = t_step + hold
+    res = run_closed_loop(controller, t_rel + after,
+                          [Event(t_step, 'reference', r_high, 'flow'),
+                           Event(t_rel, 'reference', r0, 'flow')],
+                          params=params, profile=profile, start_flow=r0, mode='flow')
+    q = res.smooth('q_l')
+    f = disturbance_figures(res.t, q, t_rel, r0, 0.01 * params.Q_max)
+    after_rel = res.t >= t_rel
+    return CaseResult(f'unreachable demand {r_high / params.Q_max:.0%} for {hold:g} s', res,
+                      {'recovery': f.recovery,
+                       'undershoot': float(max(0.0, r0 - np.min(q[after_rel]))),
+                       'peak_command': float(np.max(res.command))})
+
+
+def shaft_speed_case(controller: Controller, params: Params, profile: SensorProfile,
+                     r: float, factor: float = 0.9, duration: float = 0.8,
+                     t_step: float = 0.1) -> CaseResult:
+    """Flow-mode disturbance: the shaft speed (engine) steps by ``factor`` at ``t_step``."""
+    res = run_closed_loop(controller, duration,
+                          [Event(t_step, 'shaft_speed', params.pump.f_p * factor)],
+                          params=params, profile=profile, start_flow=r, mode='flow')
+    f = disturbance_figures(res.t, res.smooth('q_l'), t_step, r, 0.01 * params.Q_max)
+    return CaseResult(f'shaft speed x{factor:g} at {r / params.Q_max:.0%}', res,
+                      {'peak': f.peak, 'overshoot': f.overshoot, 'recovery': f.recovery,
+                       'iae': f.iae})
+
+
+def dither_case(controller: Controller, params: Params, profile: SensorProfile, mode: str,
+                duration: float = 1.0, **start) -> CaseResult:
+    """Steady operation with the bench dither: command ripple at the dither frequency.
+
+    The controller samples at 200 Hz, so the 150 Hz dither reaches it aliased (50 Hz); both
+    tones are measured on the applied (held) command [A].
+    """
+    res = run_closed_loop(controller, duration, [], params=params, profile=profile, mode=mode,
+                          **start)
+    f_d = res.params.input.dither_freq
+    f_s = controller.config.controller.update_rate
+    f_alias = abs(f_d - round(f_d / f_s) * f_s)
+    t, u = res.t, res.command
+    return CaseResult(f'dither {f_d:g} Hz, {mode} mode', res,
+                      {'ripple_dither': tone_amplitude(t, u, f_d),
+                       'ripple_alias': tone_amplitude(t, u, f_alias) if f_alias > 0 else 0.0,
+                       'command_std': float(np.std(u))})
+
+
+# --- the target table -------------------------------------------------------------------------
+
+# The judged operating points of issue 4.
+FLOW_STEPS = ((0.3, 0.7), (0.7, 0.3))            # fractions of V_p f_p
+MARGINS = (2.0e6, 3.0e6)                          # Pa
+APERTURES = (0.1, 0.5, 0.8)
+APERTURE_FACTORS = (1.2, 0.8)
+CURRENT_SPAN = 0.4                                # A, 0..100 % displacement (bench.yaml)
+
+
+def one_at_a_time(scale: float = 0.2) -> list[PlantVariation]:
+    """``G0``, ``tau`` and ``t_d`` moved by ``+-scale``, one at a time."""
+    out = []
+    for i, s in itertools.product(range(3), (1.0 - scale, 1.0 + scale)):
+        v = [1.0, 1.0, 1.0]
+        v[i] = s
+        out.append(PlantVariation(*v))
+    return out
+
+
+def corners(scale: float = 0.2) -> list[PlantVariation]:
+    """The eight combined ``+-scale`` corners of ``(G0, tau, t_d)``."""
+    return [PlantVariation(*c) for c in itertools.product((1.0 - scale, 1.0 + scale),
+                                                            repeat=3)]
+
+
+@dataclass
+class TargetRow:
+    """One line of the target table: measured EMC and PI figures and whether EMC passes."""
+
+    case: str
+    target: str
+    emc: str
+    pi: str
+    ok: bool | None
+
+
+def _ratio_ok(emc: list[float], pi: list[float], limit: float) -> tuple[str, bool]:
+    r = [e / p for e, p in zip(emc, pi)]
+    return f'IAE ratio max {max(r):.2f} (min {min(r):.2f})', max(r) <= limit
+
+
+def evaluate(make: dict, params: Params, profile: SensorProfile, cfg) -> list[TargetRow]:
+    """Run every judged case for each controller factory in ``make`` (``{'EMC': f, 'PI': g}``,
+    each ``f()`` a fresh controller) and return the target table (EMC judged)."""
+    from .design import (
+        emc_flow_margins,
+        emc_margin_margins,
+        margin_operating_points,
+        pi_flow_margins,
+    )
+    FS = params.Q_max
+    rows: list[TargetRow] = []
+    run = {name: {} for name in make}
+    for name, f in make.items():
+        R = run[name]
+        R['steps'] = [flow_step_case(f(), params, profile, a * FS, b * FS).figures
+                      for a, b in FLOW_STEPS]
+        R['one'] = [flow_step_case(f(), params, profile, a * FS, b * FS, v, 1.0).figures
+                    for v in one_at_a_time() for a, b in FLOW_STEPS]
+        R['corner'] = [flow_step_case(f(), params, profile, a * FS, b * FS, v, 1.2).figures
+                       for v in corners() for a, b in FLOW_STEPS]
+        R['aperture'] = [aperture_case(f(), params, profile, dp, xi, k).figures
+                         for dp in MARGINS for xi in APERTURES for k in APERTURE_FACTORS]
+        R['setpoint'] = [setpoint_case(f(), params, profile, xi=xi).figures
+                         for xi in APERTURES]
+        R['unreachable'] = unreachable_case(f(), params, profile, 0.6 * FS, 1.1 * FS).figures
+        R['shaft'] = [shaft_speed_case(f(), params, profile, 0.5 * FS, k).figures
+                      for k in (0.9, 1.1)]
+        R['load'] = [load_pressure_case(f(), params, profile, 2.5e6, xi, st).figures
+                     for xi in APERTURES for st in (1.0e6, -1.0e6)]
+        R['dither'] = [dither_case(f(), params, profile, 'flow', start_flow=0.5 * FS).figures,
+                       dither_case(f(), params, profile, 'margin', start_margin=2.5e6,
+                                   aperture=0.5).figures]
+    E, P = run.get('EMC', {}), run.get('PI', {})
+
+    def col(R, fn):
+        return fn(R) if R else '-'
+
+    def step_txt(f):
+        return (f"rise {f['rise'] * 1e3:.0f} ms, OS {f['overshoot']:.1f} %, settle "
+                f"{f['settling'] * 1e3:.0f} ms, e_ss {f['steady_error'] / FS * 100:.2f} % FS")
+    up, dn = E['steps']
+    rows.append(TargetRow('flow step 30 -> 70 %', 'rise <= 150 ms, OS <= 5 %, settle <= 350 ms,'
+                          ' e_ss <= 0.5 % FS', step_txt(up), col(P, lambda R: step_txt(
+                              R['steps'][0])),
+                          up['rise'] <= 0.15 and up['overshoot'] <= 5.0
+                          and up['settling'] <= 0.35 and up['steady_error'] <= 0.005 * FS))
+    rows.append(TargetRow('flow step 70 -> 30 %', 'OS <= 10 %, settle <= 350 ms', step_txt(dn),
+                          col(P, lambda R: step_txt(R['steps'][1])),
+                          dn['overshoot'] <= 10.0 and dn['settling'] <= 0.35))
+    m_up, m_dn = emc_flow_margins(cfg, 'up'), emc_flow_margins(cfg, 'down')
+    p_up, p_dn = pi_flow_margins(cfg, 'up'), pi_flow_margins(cfg, 'down')
+    mm = [emc_margin_margins(cfg, math.exp(-cfg.period / op[4]))
+          for op in margin_operating_points(params)]
+
+    def mtxt(ms):
+        return (f'GM {min(m.gain_margin for m in ms):.1f} dB, PM '
+                f'{min(m.phase_margin for m in ms):.0f} deg, DM '
+                f'{min(m.delay_margin for m in ms) * 1e3:.0f} ms')
+    rows.append(TargetRow('margins, flow loop (eq. 19 / eq. 15, 55 ms delay)',
+                          'GM >= 6 dB, PM >= 45 deg, DM >= 25 ms', mtxt([m_up, m_dn]),
+                          mtxt([p_up, p_dn]), all(m.gain_margin >= 6 and m.phase_margin >= 45
+                                                  and m.delay_margin >= 0.025 and m.stable
+                                                  for m in (m_up, m_dn))))
+    rows.append(TargetRow('margins, margin loop (apertures 0.08..0.96)',
+                          'GM >= 6 dB, PM >= 45 deg, DM >= 25 ms', mtxt(mm), '-',
+                          all(m.gain_margin >= 6 and m.phase_margin >= 45
+                              and m.delay_margin >= 0.025 and m.stable for m in mm)))
+
+    def rob_txt(fs):
+        return (f"OS max {max(f['overshoot'] for f in fs):.1f} %, settle max "
+                f"{max(f['settling'] for f in fs) * 1e3:.0f} ms, e_ss max "
+                f"{max(f['steady_error'] for f in fs) / FS * 100:.2f} % FS")
+    one = E['one']
+    rows.append(TargetRow('+-20 % on G0, tau, t_d one at a time (up and down)',
+                          'OS <= 10 %, settle <= 500 ms, no e_ss (<= 0.5 % FS)', rob_txt(one),
+                          col(P, lambda R: rob_txt(R['one'])),
+                          max(f['overshoot'] for f in one) <= 10.0
+                          and max(f['settling'] for f in one) <= 0.5
+                          and max(f['steady_error'] for f in one) <= 0.005 * FS))
+    cor = E['corner']
+    rows.append(TargetRow('worst combined +-20 % corner (up and down)',
+                          'OS <= 30 %, settle <= 800 ms', rob_txt(cor),
+                          col(P, lambda R: rob_txt(R['corner'])),
+                          max(f['overshoot'] for f in cor) <= 30.0
+                          and max(f['settling'] for f in cor) <= 0.8))
+
+    def ap_txt(fs):
+        return (f"beyond {max(f['beyond'] for f in fs) / 1e5:+.2f} bar, recovery max "
+                f"{max(f['recovery'] for f in fs) * 1e3:.0f} ms, ripple max "
+                f"{max(f['ripple'] for f in fs) / 1e5:.2f} bar")
+    ap = E['aperture']
+    rows.append(TargetRow('aperture +-20 % at 0.1/0.5/0.8, 20 and 30 bar (12 cases)',
+                          'beyond quasi-static <= 1 bar, back in +-1 bar <= 300 ms, no limit '
+                          'cycle (ripple <= 1 bar)', ap_txt(ap), col(P, lambda R: ap_txt(
+                              R['aperture'])),
+                          max(f['beyond'] for f in ap) <= 1.0e5
+                          and max(f['recovery'] for f in ap) <= 0.3
+                          and max(f['ripple'] for f in ap) <= 1.0e5))
+
+    def sp_txt(fs):
+        return (f"rise max {max(f['rise'] for f in fs) * 1e3:.0f} ms, OS max "
+                f"{max(f['overshoot'] for f in fs):.1f} %, settle max "
+                f"{max(f['settling'] for f in fs) * 1e3:.0f} ms")
+    sp = E['setpoint']
+    rows.append(TargetRow('margin set-point 20 -> 25 bar (xi 0.1/0.5/0.8)',
+                          'rise <= 200 ms, OS <= 10 %, settle +-0.5 bar <= 400 ms', sp_txt(sp),
+                          col(P, lambda R: sp_txt(R['setpoint'])),
+                          max(f['rise'] for f in sp) <= 0.2
+                          and max(f['overshoot'] for f in sp) <= 10.0
+                          and max(f['settling'] for f in sp) <= 0.4))
+
+    def un_txt(f):
+        return (f"back in {f['recovery'] * 1e3:.0f} ms, undershoot "
+                f"{f['undershoot'] / FS * 100:.2f} % FS")
+    un = E['unreachable']
+    rows.append(TargetRow('unreachable demand (110 %) for 1 s, then 60 %',
+                          'back in +-1 % FS <= 350 ms, undershoot <= 2 % FS', un_txt(un),
+                          col(P, lambda R: un_txt(R['unreachable'])),
+                          un['recovery'] <= 0.35 and un['undershoot'] <= 0.02 * FS))
+
+    def di_txt(fs):
+        worst = max(max(f['ripple_dither'], f['ripple_alias']) for f in fs)
+        return f'{worst * 1e3:.2f} mA ({worst / CURRENT_SPAN * 100:.2f} % of 0.4 A)'
+    di = E['dither']
+    rows.append(TargetRow('dither 150 Hz (flow and margin mode)',
+                          'ripple at 150 Hz (and its 50 Hz alias) <= 1 % of 0.4 A', di_txt(di),
+                          col(P, lambda R: di_txt(R['dither'])),
+                          all(max(f['ripple_dither'], f['ripple_alias']) <= 0.01 * CURRENT_SPAN
+                              for f in di)))
+    if P:
+        # "Overshoot" of a regulator after a disturbance: its peak deviation. EMC may not
+        # exceed the PI's by more than one quantum of the bench sensor (0.1 bar, 0.25 % FS).
+        txt, ok = _ratio_ok([f['iae'] for f in ap], [f['iae'] for f in P['aperture']], 0.9)
+        os_ok = all(abs(e['peak']) <= abs(p['peak']) + 1.0e4
+                    for e, p in zip(ap, P['aperture']))
+        rows.append(TargetRow('EMC vs PI: aperture cases', 'IAE <= 0.9 x PI, peak no worse',
+                              txt + (', peak no worse' if os_ok else ', peak WORSE'),
+                              '(reference)', ok and os_ok))
+        txt, ok = _ratio_ok([f['iae'] for f in E['shaft']], [f['iae'] for f in P['shaft']],
+                            0.9)
+        os_ok = all(abs(e['peak']) <= abs(p['peak']) + 0.0025 * FS
+                    for e, p in zip(E['shaft'], P['shaft']))
+        rows.append(TargetRow('EMC vs PI: flow disturbance (shaft speed -10 %, +10 %)',
+                              'IAE <= 0.9 x PI, peak no worse',
+                              txt + (', peak no worse' if os_ok else ', peak WORSE'),
+                              '(reference)', ok and os_ok))
+        txt, ok = _ratio_ok([f['iae'] for f in E['shaft']], [f['iae'] for f in P['shaft']],
+                            1.0)
+        rows.append(TargetRow('EMC vs PI: flow disturbance, achievable target (docs)',
+                              'IAE <= 1.0 x PI, peak no worse', txt, '(reference)', ok and os_ok))
+        txt, _ = _ratio_ok([f['iae'] for f in E['load']], [f['iae'] for f in P['load']], 0.9)
+        rows.append(TargetRow('EMC vs PI: load pressure +-10 bar (information)', '-', txt,
+                              '(reference)', None))
+    return rows
+
+
+def format_table(rows: list[TargetRow]) -> str:
+    """The target table as text (one block per case)."""
+    out = []
+    for r in rows:
+        flag = {True: 'PASS', False: 'MISS', None: 'info'}[r.ok]
+        out.append(f'[{flag}] {r.case}\n       target: {r.target}\n       EMC:    {r.emc}\n'
+                   f'       PI:     {r.pi}')
+    return '\n'.join(out)

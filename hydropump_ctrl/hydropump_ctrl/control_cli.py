@@ -1,0 +1,309 @@
+"""``hydropump design`` and ``hydropump closed-loop``: the control sub-commands.
+
+``design`` builds the controller from the simplified model and eq. 19, prints the gains, the
+closed-loop eigenvalues and the loop margins, and writes ``config/controller.yaml``.
+``closed-loop`` runs the judged cases on the fine-model simulator with the bench sensors and
+plots EMC beside the PI baseline.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+import time
+
+import numpy as np
+import yaml
+
+from hydropump_sim.params import default_params_path, load_params
+
+CONTROLLER_YAML = 'controller.yaml'
+BENCH_YAML = 'bench.yaml'
+
+
+def _plant_path(args) -> Path:
+    return Path(args.params) if args.params else default_params_path()
+
+
+def _overrides(items) -> dict:
+    """``--set name=value`` pairs, values read as YAML (``0.02``, ``true``, ``pi``)."""
+    from .cli import UsageError
+    out = {}
+    for item in items or ():
+        name, sep, text = item.partition('=')
+        if not sep or not name:
+            raise UsageError(f'--set {item!r}: expected NAME=VALUE, e.g. emc.tau_control=0.02')
+        out[name.strip()] = yaml.safe_load(text)
+    return out
+
+
+# --- design -----------------------------------------------------------------------------------
+
+def design_report(cfg, params) -> str:
+    """Gains, eigenvalues and margins of a controller configuration, as text."""
+    from .control import design as dz
+    T, m, e = cfg.period, cfg.model, cfg.emc
+    g = dz.emc_gains(cfg)
+    lines = ['== Embedded model (eq. 19 identified, simplified model around it) ==']
+    G0 = m.gain * params.spool.I_max / m.Q_max * 100.0
+    for name, val, unit, note in (
+            ('gain', m.gain, 'm^3/(s A)', f'eq. 19 G0 = {G0:.1f} (eq. 11: V_p f_p / I_max)'),
+            ('tau', m.tau, 's', 'growing flow, eq. 19'),
+            ('tau_down', m.tau_down, 's', 'falling flow, eq. 15 / eq. 14 ratio'),
+            ('tau_z', m.tau_z, 's', 'zero of eq. 17, S_a/b_p'),
+            ('t_d', m.t_d, 's', f'measurement delay, {g.N} periods of {T * 1e3:g} ms'),
+            ('flow_error_max', m.flow_error_max, 'm^3/s',
+             f'spool stroke limit, {m.flow_error_max / m.Q_max * 100:.1f} % FS; largest rate '
+             f'{m.flow_error_max / m.tau / m.Q_max * 100:.0f} % FS/s'),
+            ('C_l', m.C_l, 'm^3/Pa', 'line capacitance V_l/beta')):
+        lines.append(f'  {name:15s} {val:12.5g} {unit:10s} {note}')
+    lines.append('')
+    lines.append(f'== Eigenvalues (chosen) and gains, T = {T * 1e3:g} ms ==')
+
+    def ev(tau):
+        return f'tau {tau * 1e3:6.1f} ms  z = {math.exp(-T / tau):.4f}'
+    lines += [
+        f'  reference generator (flow)    {ev(e.tau_reference)}   k_r = {g.k_r:.4f}, '
+        f'|v_r - Q_r| <= {g.reference_limit / m.Q_max * 100:.1f} % FS',
+        f'  reference generator (margin)  {ev(e.tau_margin_flow)}   k_r = {g.k_r_margin:.4f}',
+        f'  margin set-point trajectory   {ev(e.tau_margin_reference)}',
+        f'  state feedback                {ev(e.tau_control)}   k_x = {g.k_x:.4f}',
+        f'  flow noise estimator          {ev(e.tau_estimator_fast)}',
+        f'                                {ev(e.tau_estimator_slow)}',
+        f'    growing branch (eq. 19):  l_Q = {g.up.l_Q:.4f}, l_d = {g.up.l_d:.4f}',
+        f'    falling branch (eq. 15, zero c = {g.down.c:.3f}):  l_Q = {g.down.l_Q:.4f}, '
+        f'l_d = {g.down.l_d:.4f}',
+        f'  line noise estimator          {ev(e.tau_line_fast)}',
+        f'                                {ev(e.tau_line_slow)}',
+        '    gains follow the line pole of the operating point:']
+    for xi, dp, _q, _, tl in dz.margin_operating_points(params, (0.08, 0.5, 0.96), (2.5e6,)):
+        a = math.exp(-T / tl)
+        l_p, l_k = dz.line_estimator_gains(a, m.gamma_u, g.poles['line_fast'],
+                                          g.poles['line_slow'])
+        lines.append(f'      xi {xi:4.2f}, {dp / 1e5:g} bar: tau_l {tl * 1e3:5.1f} ms, '
+                     f'alpha {a:.3f}: l_p = {l_p:+.4f}, l_k = {l_k:+.4f}')
+    lines.append('')
+    lines.append('== Closed-loop eigenvalues, nominal flow loop on the linear model with the '
+                 'delay ==')
+    for branch in ('up', 'down'):
+        z = dz.closed_loop_eigenvalues(cfg, branch)
+        dom = sorted((p for p in z if abs(p) > 0.3), key=lambda p: -abs(p))
+        txt = ', '.join(f'{p.real:.4f}' + (f'{p.imag:+.4f}j' if abs(p.imag) > 1e-6 else '')
+                        + f' ({-T / math.log(abs(p)) * 1e3:.1f} ms)' for p in dom)
+        rest = max((abs(p) for p in z if abs(p) <= 0.3), default=0.0)
+        lines.append(f'  {branch:4s}: {txt}; {len(z) - len(dom)} more with |z| <= {rest:.2f} '
+                     '(the delay line)')
+    lines.append(f'  chosen: control {g.poles["control"]:.4f}, estimator '
+                 f'{g.poles["estimator_fast"]:.4f}, {g.poles["estimator_slow"]:.4f}')
+    lines.append('')
+    lines.append('== Loop margins (loop broken at the command; 55 ms delay in the loop) ==')
+
+    def mrow(name, mg):
+        return (f'  {name:44s} GM {mg.gain_margin:5.1f} dB  PM {mg.phase_margin:5.1f} deg  '
+                f'DM {mg.delay_margin * 1e3:5.1f} ms  w_c {mg.crossover:5.1f} rad/s'
+                + ('' if mg.stable else '  UNSTABLE'))
+    lines.append(mrow('EMC, growing flow (eq. 19)', dz.emc_flow_margins(cfg, 'up')))
+    lines.append(mrow('EMC, falling flow (eq. 15 with its zero)',
+                      dz.emc_flow_margins(cfg, 'down')))
+    for label, kw in (('G0 +20 %', {'gain': 1.2}), ('G0 -20 %', {'gain': 0.8}),
+                      ('tau +20 %', {'tau_scale': 1.2}), ('tau -20 %', {'tau_scale': 0.8}),
+                      ('t_d +20 %', {'delay': 1.2 * m.t_d}),
+                      ('t_d -20 %', {'delay': 0.8 * m.t_d})):
+        lines.append(mrow(f'EMC, growing flow, plant {label}', dz.emc_flow_margins(cfg, 'up',
+                                                                                 **kw)))
+    lines.append(mrow('PI (SIMC), growing flow', dz.pi_flow_margins(cfg, 'up')))
+    lines.append(mrow('PI (SIMC), falling flow', dz.pi_flow_margins(cfg, 'down')))
+    ops = dz.margin_operating_points(params, (0.08, 0.5, 0.96), (2.0e6, 3.0e6))
+    mm = [dz.emc_margin_margins(cfg, math.exp(-T / op[4])) for op in ops]
+    lines.append(mrow('EMC margin loop, any aperture 0.08..0.96', min(
+        mm, key=lambda x: x.phase_margin)))
+    spread = max(x.phase_margin for x in mm) - min(x.phase_margin for x in mm)
+    lines.append(f'  (margin loop: phase margin spread over the apertures {spread:.2g} deg: '
+                 'one tuning)')
+    lines.append('')
+    lines.append('== PI baseline (control_toolbox names) ==')
+    for grp, unit in (('pi.flow', 'A/(m^3/s)'), ('pi.margin', 'A/Pa')):
+        pg = cfg.group(grp)
+        lines.append(f'  {grp}: p = {pg.p:.5g} {unit}, i = {pg.i:.5g} {unit}/s, '
+                     f'antiwindup {pg.antiwindup_strategy}, feedforward_gain '
+                     f'{pg.feedforward_gain:g}')
+    return '\n'.join(lines)
+
+
+def cmd_design(args) -> int:
+    from .control.design import design_config
+    t0 = time.perf_counter()
+    plant = _plant_path(args)
+    params = load_params(plant)
+    cfg = design_config(params, G0=args.G0, tau=args.tau, t_d=args.t_d,
+                        base=_overrides(args.set))
+    print(f'plant parameters: {plant}; eq. 19: G0 = {args.G0:g}, tau = {args.tau:g} s, '
+          f't_d = {args.t_d:g} s\n', flush=True)
+    print(design_report(cfg, params))
+    out = Path(args.out) if args.out else plant.with_name(CONTROLLER_YAML)
+    if args.dry_run:
+        print(f'\n(dry run: {out} not written)')
+        return 0
+    header = (f'# Controller parameters (ROS 2 params file, SI units), written by '
+              f'`hydropump design`\n# from {plant.name} and eq. 19 (G0 {args.G0:g}, tau '
+              f'{args.tau:g} s, t_d {args.t_d:g} s). Load with\n'
+              '# hydropump_ctrl.control.schema.load_config(path); docs/control.md explains '
+              'every group.\n# model.* is the embedded model; emc.* are closed-loop '
+              'eigenvalues (time constants), the\n# EMC gains follow from them; pi.* is the '
+              'baseline with control_toolbox names.')
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(cfg.to_ros_yaml(header))
+    print(f'\nwrote {out} ({time.perf_counter() - t0:.1f} s)')
+    return 0
+
+
+# --- closed-loop ------------------------------------------------------------------------------
+
+def _load_setup(args):
+    from hydropump_sim.sensors import load_profile
+
+    from .control.design import design_config
+    from .control.schema import load_config
+    plant = _plant_path(args)
+    params = load_params(plant)
+    profile = load_profile(Path(args.profile) if args.profile
+                           else plant.with_name(BENCH_YAML))
+    cfg_path = Path(args.config) if args.config else plant.with_name(CONTROLLER_YAML)
+    if cfg_path.is_file():
+        cfg = load_config(cfg_path, current_limits=params.I_limits)
+        source = str(cfg_path)
+    elif args.config:
+        raise FileNotFoundError(f'controller parameters {cfg_path} not found')
+    else:
+        cfg = design_config(params)
+        source = 'designed from the plant (no controller.yaml found)'
+    sets = _overrides(args.set)
+    if sets:
+        cfg = cfg.replace(sets)
+    return params, profile, cfg, source
+
+
+def _plot_pair(path: Path, title: str, runs: dict, signal: str, scale: float, unit: str,
+               reference, band=None) -> None:
+    """EMC and PI side by side: controlled variable, what the controller saw, command."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(2, len(runs), figsize=(6.5 * len(runs), 6.5), sharex=True,
+                             squeeze=False)
+    for col, (name, res) in enumerate(runs.items()):
+        ax, axu = axes[0, col], axes[1, col]
+        y = res.smooth(signal) / scale
+        if signal == 'q_l':
+            seen = res.meas['line_flow'] / scale
+        else:
+            seen = (res.meas['line_pressure'] - res.meas['load_pressure']) / scale
+        ax.plot(res.t_ctrl, seen, color='0.75', lw=0.8, label='measured (bench sensor)')
+        ax.plot(res.t, y, color='C0', lw=1.6, label=f'{signal} (true, dither averaged)')
+        ref = reference(res)
+        if ref is not None:
+            ax.plot(res.t_ctrl, ref / scale, 'k--', lw=1.0, label='reference')
+            if band is not None:
+                ax.fill_between(res.t_ctrl, (ref - band) / scale, (ref + band) / scale,
+                                color='C2', alpha=0.12, lw=0, label='target band')
+        ax.set_title(f'{name}: {title}')
+        ax.set_ylabel(unit)
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=7, loc='best')
+        axu.plot(res.t, res.command, color='C3', lw=1.0)
+        axu.set_ylabel('command I_s [A]')
+        axu.set_xlabel('time [s]')
+        axu.grid(True, alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def cmd_closed_loop(args) -> int:
+    from .cli import run_dir
+    from .control import cases as cs
+    from .control.emc import EMCController
+    from .control.pi import PIController
+    t0 = time.perf_counter()
+    params, profile, cfg, source = _load_setup(args)
+    out = run_dir(args.out, 'closed-loop')
+    print(f'controller: {source}; sensors: {args.profile or BENCH_YAML}', flush=True)
+    make = {'EMC': lambda: EMCController(cfg), 'PI': lambda: PIController(cfg)}
+    FS = params.Q_max
+    steps = {}
+    for a, b in cs.FLOW_STEPS:
+        runs = {n: cs.flow_step_case(f(), params, profile, a * FS, b * FS).result
+                for n, f in make.items()}
+        name = f'flow_step_{a * 100:.0f}_{b * 100:.0f}.png'
+        _plot_pair(out / name, f'flow step {a:.0%} -> {b:.0%}', runs, 'q_l', FS / 100.0,
+                   'flow [% of V_p f_p]',
+                   lambda r, a=a, b=b: np.where(r.t_ctrl >= 0.1, b * FS, a * FS),
+                   band=0.02 * abs(b - a) * FS)
+        steps[name] = runs
+    for dp, xi, k in ((2.5e6, 0.1, 1.2), (2.5e6, 0.8, 0.8), (3.0e6, 0.5, 1.2)):
+        runs = {n: cs.aperture_case(f(), params, profile, dp, xi, k).result
+                for n, f in make.items()}
+        _plot_pair(out / f'aperture_{xi:g}x{k:g}_{dp / 1e5:.0f}bar.png',
+                   f'aperture {xi:g} -> {xi * k:.2f} at {dp / 1e5:g} bar', runs, 'margin', 1e5,
+                   'margin P_l - P_u [bar]', lambda r, dp=dp: np.full(r.t_ctrl.size, dp),
+                   band=1.0e5)
+    for xi in (0.1, 0.8):
+        runs = {n: cs.setpoint_case(f(), params, profile, xi=xi).result
+                for n, f in make.items()}
+        _plot_pair(out / f'setpoint_20_25bar_xi{xi:g}.png',
+                   f'margin set-point 20 -> 25 bar, xi {xi:g}', runs, 'margin', 1e5,
+                   'margin P_l - P_u [bar]',
+                   lambda r: np.where(r.t_ctrl >= 0.1, 2.5e6, 2.0e6), band=0.5e5)
+    runs = {n: cs.unreachable_case(f(), params, profile, 0.6 * FS, 1.1 * FS).result
+            for n, f in make.items()}
+    _plot_pair(out / 'unreachable.png', 'demand 110 % for 1 s, then 60 %', runs, 'q_l',
+               FS / 100.0, 'flow [% of V_p f_p]',
+               lambda r: np.where((r.t_ctrl >= 0.1) & (r.t_ctrl < 1.1), 1.1 * FS, 0.6 * FS),
+               band=0.01 * FS)
+    runs = {n: cs.shaft_speed_case(f(), params, profile, 0.5 * FS, 0.9).result
+            for n, f in make.items()}
+    _plot_pair(out / 'shaft_speed.png', 'shaft speed -10 % at 50 % flow', runs, 'q_l',
+               FS / 100.0, 'flow [% of V_p f_p]', lambda r: np.full(r.t_ctrl.size, 0.5 * FS),
+               band=0.01 * FS)
+    print(f'plots written in {out} ({time.perf_counter() - t0:.1f} s); evaluating the '
+          'targets...', flush=True)
+    if args.no_table:
+        return 0
+    rows = cs.evaluate(make, params, profile, cfg)
+    table = cs.format_table(rows)
+    print(table)
+    (out / 'targets.txt').write_text(f'controller: {source}\n\n{table}\n')
+    n_miss = sum(r.ok is False for r in rows)
+    print(f'\n{sum(r.ok is True for r in rows)} targets met, {n_miss} missed; wrote '
+          f'{out}/targets.txt ({time.perf_counter() - t0:.1f} s)')
+    return 0
+
+
+def register(sub) -> None:
+    """Add ``design`` and ``closed-loop`` to the ``hydropump`` command line."""
+    d = sub.add_parser('design', help='EMC and PI design from the simplified model and eq. 19: '
+                       'gains, eigenvalues, margins; writes config/controller.yaml')
+    d.add_argument('--params', help='plant params file (default: config/pump.yaml)')
+    d.add_argument('--G0', type=float, default=100.0, help='eq. 19 DC gain (default 100)')
+    d.add_argument('--tau', type=float, default=0.1, help='eq. 19 time constant [s] '
+                   '(default 0.1)')
+    d.add_argument('--t-d', dest='t_d', type=float, default=0.055,
+                   help='eq. 19 delay [s] (default 0.055)')
+    d.add_argument('--set', action='append', metavar='NAME=VALUE',
+                   help='override a controller parameter, e.g. emc.tau_control=0.02')
+    d.add_argument('--out', help='params file to write (default: controller.yaml beside the '
+                   'plant file)')
+    d.add_argument('--dry-run', action='store_true', help='print only, write nothing')
+    d.set_defaults(func=cmd_design)
+    c = sub.add_parser('closed-loop', help='EMC and PI against the fine model with the bench '
+                       'sensors: side-by-side plots and the target table')
+    c.add_argument('--params', help='plant params file (default: config/pump.yaml)')
+    c.add_argument('--profile', help='sensor profile (default: bench.yaml beside the plant '
+                   'file)')
+    c.add_argument('--config', help='controller params (default: controller.yaml beside the '
+                   'plant file, else designed on the fly)')
+    c.add_argument('--set', action='append', metavar='NAME=VALUE',
+                   help='override a controller parameter')
+    c.add_argument('--out', help='output folder (default: out/closed-loop-<time>)')
+    c.add_argument('--no-table', action='store_true', help='plots only, skip the target table')
+    c.set_defaults(func=cmd_closed_loop)
