@@ -118,7 +118,8 @@ def _register_plant_commands(sub) -> None:
 
 # Each entry adds its sub-commands to the parser; a command's ``func(args)`` returns the exit
 # code. Other modules register here with a ``register(subparsers)`` function.
-COMMANDS = [_register_plant_commands, __import__('hydropump_ctrl.fit_cli').fit_cli.register]
+COMMANDS = [_register_plant_commands, __import__('hydropump_ctrl.fit_cli').fit_cli.register,
+            __import__('hydropump_ctrl.control_cli').control_cli.register]
 
 
 def build_parser() -> argparse.ArgumentParser:
