@@ -36,6 +36,8 @@ def register(subparsers) -> None:
     p.add_argument('--out', help='report folder (default: out/fit-<time>)')
     p.add_argument('--no-report', action='store_true', help='write no report folder')
     p.add_argument('--no-plots', action='store_true', help='report without figures')
+    p.add_argument('--plots-per-set', action='store_true',
+                   help='also write Fig. 5 and Fig. 6 of every set on its own')
     p.add_argument('--start', nargs=3, type=float, metavar=('G0', 'TAU', 'TD'),
                    help='starting point (tau, t_d in s)')
     p.add_argument('--td-bounds', nargs=2, type=float, metavar=('LO', 'HI'),
@@ -109,7 +111,8 @@ def cmd_fit(args) -> int:
     if not args.no_report:
         from .cli import run_dir
         out = run_dir(args.out, 'fit')
-        write_report(ident, out, params=params, plots=not args.no_plots)
+        write_report(ident, out, params=params, plots=not args.no_plots,
+                     per_set=args.plots_per_set)
         print(f'wrote {out}/result.json, report.md'
               f'{"" if args.no_plots else " and figures"} ({time.perf_counter() - t0:.1f} s)',
               file=sys.stderr if args.json else sys.stdout)

@@ -201,11 +201,13 @@ def markdown(ident: Identification, figures: dict[str, list[str]] | None = None)
 # Figures
 # --------------------------------------------------------------------------------------------
 
-def simplified_flow(rec, fit: FopdtFit, params) -> np.ndarray | None:
+def simplified_flow(rec, fit: FopdtFit, params, until: float | None = None
+                    ) -> np.ndarray | None:
     """Flow [%] of the plant library's simplified model at the fit's sample times.
 
     Driven by the recorded current held between samples and delayed by the identified
-    ``t_d``; ``None`` when the simulation fails (for example a current outside eq. 2).
+    ``t_d``; simulated up to ``until`` [s of the fit's time axis] (default the end), NaN
+    after it; ``None`` when the simulation fails (for example a current outside eq. 2).
     """
     from hydropump_sim.scaling import flow_percent
     from hydropump_sim.simulate import IntegrationError, simulate
@@ -216,19 +218,45 @@ def simplified_flow(rec, fit: FopdtFit, params) -> np.ndarray | None:
         k = np.searchsorted(t_rec, np.asarray(t) - fit.td + 1e-9 * rec.dt, side='right') - 1
         return cur[np.clip(k, 0, cur.size - 1)]
 
+    end = float(t_rec[-1]) if until is None else min(float(t_rec[-1]), until - rec.t[0])
     try:
-        res = simulate(params, float(t_rec[-1]), current, model='simplified', dt_out=rec.dt)
+        res = simulate(params, max(end, 2 * rec.dt), current, model='simplified',
+                       dt_out=rec.dt)
     except (IntegrationError, ValueError):
         return None
     q = np.asarray(flow_percent(params, res.q_l))
-    k = np.clip(np.round((fit.t - rec.t[0]) / rec.dt).astype(int), 0, q.size - 1)
-    return q[k]
+    k = np.round((fit.t - rec.t[0]) / rec.dt).astype(int)
+    out = np.full(k.size, np.nan)
+    ok = k < q.size
+    out[ok] = q[k[ok]]
+    return out
 
 
 def _display(x: np.ndarray, dt: float) -> np.ndarray:
     """Dither taken out for display, as the paper filters its plotted signals."""
     from .fopdt import _smooth_width, moving_average
     return moving_average(x, _smooth_width(dt))
+
+
+# Points per plotted line: enough for a 800-pixel-wide figure, and fast to render.
+MAX_POINTS = 2500
+
+
+def _thin(*arrays, n: int = MAX_POINTS):
+    """Every k-th point of smooth signals, so that at most ``n`` are drawn."""
+    k = max(1, int(math.ceil(arrays[0].size / n)))
+    return [a[::k] for a in arrays]
+
+
+def _envelope(t: np.ndarray, x: np.ndarray, n: int = MAX_POINTS):
+    """Minimum and maximum of a noisy signal over ``n`` buckets (what the pixels show)."""
+    k = max(1, int(math.ceil(x.size / n)))
+    m = x.size // k * k
+    if m == 0:
+        return t, x, x
+    tb = t[:m].reshape(-1, k)[:, 0]
+    xb = x[:m].reshape(-1, k)
+    return tb, xb.min(axis=1), xb.max(axis=1)
 
 
 def _zoom(fit: FopdtFit) -> tuple[float, float]:
@@ -242,38 +270,48 @@ def _zoom(fit: FopdtFit) -> tuple[float, float]:
     return float(t0 - 0.3 * (fit.tau + fit.td) - 0.05), float(t0 + 5 * fit.tau + fit.td)
 
 
+def _figure(rows: int, height: float):
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(rows, 1, figsize=(8, height), squeeze=False)
+    fig.subplots_adjust(left=0.09, right=0.98, top=0.94, bottom=0.08, hspace=0.32)
+    return plt, fig, ax[:, 0]
+
+
 def plot_fig5(fit: FopdtFit, path, simplified: np.ndarray | None = None) -> Path:
     """Fig. 5 style: measured current and flow, identified and simplified-model flow.
 
     Top: the whole record; bottom: the largest up-step. The measured signals are shown with
     the dither averaged out (20 ms centred mean), as the paper shows them filtered.
     """
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    fig, axes = plt.subplots(2, 1, figsize=(8, 6.4))
+    plt, fig, axes = _figure(2, 6.4)
     cur = _display(100.0 * fit.u, fit.dt)
     meas = _display(fit.y, fit.dt)
+    model = _display(fit.y_hat, fit.dt)
+    simp = None if simplified is None else _display(simplified, fit.dt)
     for ax, zoom in zip(axes, (False, True)):
-        sel = slice(None)
+        sel = np.ones(fit.t.size, bool)
         if zoom:
             lo, hi = _zoom(fit)
             sel = (fit.t >= lo) & (fit.t <= hi)
-        t = fit.t[sel]
-        ax.plot(t, cur[sel], '-.', color='0.45', lw=0.9, label='measured current [% of range]')
-        ax.plot(t, meas[sel], 'k-', lw=1.0, label='measured flow [% of V_p f_p]')
-        ax.plot(t, fit.y_hat[sel], 'C3--', lw=1.2,
+        series = [fit.t[sel], cur[sel], meas[sel], model[sel]]
+        if simp is not None:
+            series.append(simp[sel])
+        t, c, m, yh, *rest = _thin(*series)
+        ax.plot(t, c, '-.', color='0.45', lw=0.9, label='measured current [% of range]')
+        ax.plot(t, m, 'k-', lw=1.0, label='measured flow [% of V_p f_p]')
+        ax.plot(t, yh, 'C3--', lw=1.2,
                 label=f'identified: G0={fit.G0:.1f}, tau={1e3 * fit.tau:.1f} ms, '
                       f't_d={1e3 * fit.td:.1f} ms')
-        if simplified is not None:
-            ax.plot(t, simplified[sel], 'C0:', lw=1.5,
+        if rest:
+            ax.plot(t, rest[0], 'C0:', lw=1.5,
                     label='simplified model (Fig. 4), input delayed by t_d')
         ax.set_ylabel('normalised [%]')
         ax.grid(True, alpha=0.3)
     axes[0].set_title(f'{fit.name}: pump responses, measured and identified ({fit.method})')
     axes[0].legend(fontsize=7, loc='best')
     axes[1].set_xlabel('time [s] (bottom: the largest up-step; dither averaged for display)')
-    fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -282,12 +320,9 @@ def plot_fig5(fit: FopdtFit, path, simplified: np.ndarray | None = None) -> Path
 
 def plot_fig6(fit: FopdtFit, path) -> Path:
     """Fig. 6 style: estimation error, with its autocorrelation and input cross-correlation."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(2, 1, figsize=(8, 5), gridspec_kw={'height_ratios': [2, 1]})
-    e = fit.residual
-    ax[0].plot(fit.t, e, 'k-', lw=0.6)
+    plt, fig, ax = _figure(2, 5.0)
+    tb, lo, hi = _envelope(fit.t, fit.residual)
+    ax[0].fill_between(tb, lo, hi, color='k', lw=0.0, step='post')
     ax[0].set_xlabel('time [s]')
     ax[0].set_ylabel('e_e = q_l,m - q_l,i [%]')
     ax[0].set_title(f'{fit.name}: estimation error (rms {fit.rmse:.3g} %, fit '
@@ -304,9 +339,89 @@ def plot_fig6(fit: FopdtFit, path) -> Path:
     ax[1].set_xlabel('lag [samples]')
     ax[1].legend(fontsize=7)
     ax[1].grid(True, alpha=0.3)
-    fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def _grid(n: int, top: bool):
+    """Figure with an optional full-width top panel and ``n`` panels in up to 3 columns."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    cols = min(3, n)
+    rows = int(math.ceil(n / cols))
+    extra = 1 if top else 0
+    fig = plt.figure(figsize=(9, 2.3 * (rows + 1.3 * extra) + 0.6))
+    gs = fig.add_gridspec(rows + extra, cols, height_ratios=[1.3] * extra + [1] * rows,
+                          left=0.07, right=0.98, top=0.95, bottom=0.06, hspace=0.55,
+                          wspace=0.25)
+    head = fig.add_subplot(gs[0, :]) if top else None
+    axes = [fig.add_subplot(gs[extra + i // cols, i % cols]) for i in range(n)]
+    return plt, fig, head, axes
+
+
+def _fig5_lines(ax, fit, sel, simplified, legend: bool):
+    cur = _display(100.0 * fit.u, fit.dt)
+    meas = _display(fit.y, fit.dt)
+    model = _display(fit.y_hat, fit.dt)
+    series = [fit.t[sel], cur[sel], meas[sel], model[sel]]
+    if simplified is not None:
+        series.append(_display(simplified, fit.dt)[sel])
+    t, c, m, yh, *rest = _thin(*series)
+    ax.plot(t, c, '-.', color='0.45', lw=0.9, label='measured current [% of range]')
+    ax.plot(t, m, 'k-', lw=1.0, label='measured flow [% of V_p f_p]')
+    ax.plot(t, yh, 'C3--', lw=1.2, label='identified model (eq. 19)')
+    if rest:
+        ax.plot(t, rest[0], 'C0:', lw=1.5, label='simplified model (Fig. 4), delayed by t_d')
+    ax.grid(True, alpha=0.3)
+    if legend:
+        ax.legend(fontsize=7, loc='best')
+
+
+def plot_fig5_all(fits, path, simplified=None) -> Path:
+    """Fig. 5 for a set of records: the first one whole, then every set's largest up-step.
+
+    Measured signals are shown with the dither averaged out (20 ms centred mean), as the
+    paper shows them filtered.
+    """
+    simplified = simplified or [None] * len(fits)
+    plt, fig, head, axes = _grid(len(fits), True)
+    f0 = fits[0]
+    _fig5_lines(head, f0, np.ones(f0.t.size, bool), simplified[0], True)
+    head.set_title(f'Pump responses, measured and identified ({f0.method}): {f0.name} '
+                   f'(G0={f0.G0:.1f}, tau={1e3 * f0.tau:.1f} ms, t_d={1e3 * f0.td:.1f} ms)',
+                   fontsize=9)
+    head.set_xlabel('time [s]', fontsize=8)
+    head.set_ylabel('normalised [%]', fontsize=8)
+    for ax, fit, simp in zip(axes, fits, simplified):
+        lo, hi = _zoom(fit)
+        _fig5_lines(ax, fit, (fit.t >= lo) & (fit.t <= hi), simp, False)
+        ax.set_title(f'{fit.name}: G0 {fit.G0:.1f}, tau {1e3 * fit.tau:.1f}, '
+                     f't_d {1e3 * fit.td:.1f} ms', fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.locator_params(nbins=4)
+    path = Path(path)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def plot_fig6_all(fits, path) -> Path:
+    """Fig. 6 for a set of records: the estimation error of each set."""
+    plt, fig, _, axes = _grid(len(fits), False)
+    for ax, fit in zip(axes, fits):
+        tb, lo, hi = _envelope(fit.t, fit.residual)
+        ax.fill_between(tb, lo, hi, color='k', lw=0.0, step='post')
+        ax.set_title(f'{fit.name}: e_e rms {fit.rmse:.3g} %, fit {fit.fit_percent:.1f} %',
+                     fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.locator_params(nbins=4)
+        ax.grid(True, alpha=0.3)
+    axes[0].set_ylabel('q_l,m - q_l,i [%]', fontsize=8)
+    path = Path(path)
+    fig.savefig(path, dpi=90)
     plt.close(fig)
     return path
 
@@ -316,9 +431,14 @@ def _safe(name: str) -> str:
 
 
 def write_report(ident: Identification, out_dir, *, params=None, plots: bool = True,
-                 max_plots: int | None = None) -> dict[str, Path]:
-    """Write ``result.json``, ``report.md`` and, per set, ``fig5_<set>.png`` and
-    ``fig6_<set>.png`` to ``out_dir``. Returns the paths by role."""
+                 per_set: bool = False) -> dict[str, Path]:
+    """Write the report folder and return the paths by role.
+
+    ``result.json``, ``report.md``, ``fig5.png`` (the first set's record and every set's
+    largest up-step with the identified and simplified-model flow) and ``fig6.png`` (every
+    set's estimation error); with ``per_set`` also ``fig5_<set>.png`` and
+    ``fig6_<set>.png`` (whole record, up-step, error with its correlation tests).
+    """
     from .recording import load_default_params
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -328,16 +448,20 @@ def write_report(ident: Identification, out_dir, *, params=None, plots: bool = T
     if plots:
         params = load_default_params() if params is None else params
         recs = ident.recordings or [None] * len(ident.sets)
+        # Fig. 5 shows the first record whole and the others up to their largest up-step.
+        simp = [simplified_flow(r, f, params, None if i == 0 or per_set else _zoom(f)[1])
+                if r is not None else None
+                for i, (f, r) in enumerate(zip(ident.sets, recs))]
+        paths['fig5'] = plot_fig5_all(ident.sets, out / 'fig5.png', simp)
+        paths['fig6'] = plot_fig6_all(ident.sets, out / 'fig6.png')
+        figures['All sets'] = [str(paths['fig5']), str(paths['fig6'])]
         used: set[str] = set()
-        for i, (fit, rec) in enumerate(zip(ident.sets, recs)):
-            if max_plots is not None and i >= max_plots:
-                break
+        for fit, sf in zip(ident.sets if per_set else [], simp):
             stem = _safe(fit.name)
             while stem in used:
                 stem += '_'
             used.add(stem)
-            simp = simplified_flow(rec, fit, params) if rec is not None else None
-            f5 = plot_fig5(fit, out / f'fig5_{stem}.png', simp)
+            f5 = plot_fig5(fit, out / f'fig5_{stem}.png', sf)
             f6 = plot_fig6(fit, out / f'fig6_{stem}.png')
             figures[fit.name] = [str(f5), str(f6)]
             paths[f'fig5_{stem}'] = f5
