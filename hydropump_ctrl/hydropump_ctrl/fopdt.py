@@ -550,22 +550,35 @@ def _profile_minima(P: np.ndarray, n: int = 3, sep: int = 3) -> list[int]:
     return chosen
 
 
-def _local_fit(win: _Window, theta0: np.ndarray, lo: np.ndarray, hi: np.ndarray):
-    """Bounded least squares of all five parameters from ``theta0`` (trust-region)."""
+def _solve_bounded(both, theta0: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                   max_nfev: int):
+    """Bounded least squares (trust-region reflective, scipy).
+
+    ``both(theta)`` returns the residual and its Jacobian, computed together in one model
+    pass; the last pair is cached because scipy asks for them separately.
+    """
     cache: dict[bytes, tuple] = {}
 
-    def both(th):
+    def get(th):
         key = th.tobytes()
         if key not in cache:
             cache.clear()
-            cache[key] = win.model(th, jac=True)
+            cache[key] = both(th)
         return cache[key]
 
-    theta0 = np.clip(theta0, lo, hi)
-    return optimize.least_squares(lambda th: both(th)[0] - win.y, theta0,
-                                  jac=lambda th: both(th)[1], bounds=(lo, hi),
-                                  method='trf', x_scale='jac', ftol=1e-12, xtol=1e-12,
-                                  gtol=1e-12, max_nfev=200)
+    return optimize.least_squares(lambda th: get(th)[0], np.clip(theta0, lo, hi),
+                                  jac=lambda th: get(th)[1], bounds=(lo, hi), method='trf',
+                                  x_scale='jac', ftol=1e-12, xtol=1e-12, gtol=1e-12,
+                                  max_nfev=max_nfev)
+
+
+def _local_fit(win: _Window, theta0: np.ndarray, lo: np.ndarray, hi: np.ndarray):
+    """Bounded least squares of all parameters of one record from ``theta0``."""
+    def both(th):
+        yhat, J = win.model(th, jac=True)
+        return yhat - win.y, J
+
+    return _solve_bounded(both, theta0, lo, hi, max_nfev=200)
 
 
 def _robust(u, y, dt, td_b, tau_b, start, n_tau, dither):
@@ -1020,30 +1033,20 @@ def fit_joint(records: Sequence[tuple[np.ndarray, np.ndarray, float]], *,
     rows = np.cumsum([0] + [w.M for w in wins])
     lo = np.array([-np.inf, tau_b[0], td_b[0]])
     hi = np.array([np.inf, tau_b[1], td_b[1]])
-    cache: dict[bytes, tuple] = {}
-
     def both(th):
-        key = th.tobytes()
-        if key not in cache:
-            cache.clear()
-            r = np.empty(rows[-1])
-            J = np.empty((rows[-1], 3))
-            for i, w in enumerate(wins):
-                # Nuisance columns (1, a^(k-k0), dither sinusoids): project them out.
-                _, x, g = w.model(np.r_[th, np.zeros(w.p - 3)])
-                Q, _ = np.linalg.qr(np.column_stack([np.ones(w.M), g, w.H]))
-                e = w.y - th[0] * x
-                r[rows[i]:rows[i + 1]] = Q @ (Q.T @ e) - e
-                _, Ji = w.model(np.r_[th, np.zeros(w.p - 3)], jac=True)
-                Js = Ji[:, :3]
-                J[rows[i]:rows[i + 1]] = Js - Q @ (Q.T @ Js)
-            cache[key] = (r, J)
-        return cache[key]
+        r = np.empty(rows[-1])
+        J = np.empty((rows[-1], 3))
+        for i, w in enumerate(wins):
+            _, Ji = w.model(np.r_[th, np.zeros(w.p - 3)], jac=True)
+            x, g, Js = Ji[:, 0], Ji[:, 4], Ji[:, :3]
+            # Nuisance columns (1, a^(k-k0), dither sinusoids): project them out.
+            Q, _ = np.linalg.qr(np.column_stack([np.ones(w.M), g, w.H]))
+            e = w.y - th[0] * x
+            r[rows[i]:rows[i + 1]] = Q @ (Q.T @ e) - e
+            J[rows[i]:rows[i + 1]] = Js - Q @ (Q.T @ Js)
+        return r, J
 
-    th0 = np.clip(np.asarray(start, dtype=float), lo, hi)
-    res = optimize.least_squares(lambda th: both(th)[0], th0, jac=lambda th: both(th)[1],
-                                 bounds=(lo, hi), method='trf', x_scale='jac', ftol=1e-12,
-                                 xtol=1e-12, gtol=1e-12, max_nfev=100)
+    res = _solve_bounded(both, np.asarray(start, dtype=float), lo, hi, max_nfev=100)
     r, J = both(res.x)
     cw, ch, _ = covariance(J, r, [slice(rows[i], rows[i + 1]) for i in range(len(wins))])
     G0, tau, td = (float(x) for x in res.x)
