@@ -512,22 +512,24 @@ def _grid(tc, vc, tf, vf, dt, where, notes) -> tuple[int, np.ndarray, np.ndarray
     The grid is built in integer nanoseconds, so a flow stamped on the grid is taken as is
     (interpolation at a node returns the node's value exactly).
     """
+    # The current holds its last value: the span ends with the flow.
     t0 = int(max(tc[0], tf[0]))
-    t1 = int(min(tc[-1], tf[-1]))
+    t1 = int(tf[-1])
     if t1 <= t0:
         raise BagError(f'{where}: the current and flow topics do not overlap in time')
     if dt is None:
-        steps = [float(np.median(np.diff(x))) for x in (tc, tf) if x.size > 1]
-        if not steps:
-            raise BagError(f'{where}: too few messages to find the sample period')
-        p_ns = int(round(max(steps)))
+        # The flow's own period: the current is held, so it may be published at any rate
+        # (a command published on change included).
+        if tf.size < 2:
+            raise BagError(f'{where}: too few flow messages to find the sample period')
+        p_ns = int(round(float(np.median(np.diff(tf)))))
     else:
         p_ns = int(round(dt * 1e9))
     if p_ns <= 0:
         raise BagError(f'{where}: the sample period must be positive')
     n = (t1 - t0) // p_ns + 1
     g = t0 + np.arange(n, dtype=np.int64) * p_ns
-    for topic, x in (('current', tc), ('flow', tf)):
+    for topic, x in (('flow', tf),):
         d = np.diff(x[(x >= t0 - p_ns // 2) & (x <= g[-1] + p_ns // 2)]) / p_ns
         if d.size:
             gaps = int(np.count_nonzero(d > 1.5))
@@ -537,6 +539,9 @@ def _grid(tc, vc, tf, vf, dt, where, notes) -> tuple[int, np.ndarray, np.ndarray
             jit = float(np.std(d))
             if jit > 0.1:
                 notes.append(f'{topic}: time stamps jitter by {100 * jit:.0f} % of the period')
+    if g[-1] - tc[-1] > 10 * p_ns:
+        notes.append(f'current: last message {(g[-1] - tc[-1]) * 1e-9:.3g} s before the end '
+                     'of the flow, held since')
     k = np.searchsorted(tc, g, side='right') - 1
     cur = vc[np.clip(k, 0, vc.size - 1)]
     flow = np.interp((g - t0) * 1e-9, (tf - t0) * 1e-9, vf)
@@ -557,7 +562,7 @@ def read_recording(path: str | Path, *, current_topic: str = DEFAULT_CURRENT_TOP
         ``/pump1/line_flow``). The current may be the command (``solenoid_current_cmd``)
         or the applied current (``solenoid_current``, the default).
     dt : float, optional
-        Grid period [s]; default the longer of the two topics' median periods.
+        Grid period [s]; default the flow topic's median period.
     name : str, optional
         Label; default the bag's name.
 

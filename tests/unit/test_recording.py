@@ -187,6 +187,41 @@ def test_nan_values_are_reported(tmp_path):
         read_recording(tmp_path / 'bag')
 
 
+def test_command_published_on_change_is_held(tmp_path):
+    # A current command published only when it changes: the grid follows the flow.
+    t, _, flow = _signals(3000)
+    t_cmd = T0 + np.array([0.0, 0.7, 1.9, 2.4])
+    cmd = np.array([0.46, 0.54, 0.50, 0.58])
+    write_bag(tmp_path / 'bag', {'/solenoid_current_cmd': (F64, t_cmd, cmd),
+                                 '/line_flow': (F64, t, flow)})
+    rec = read_recording(tmp_path / 'bag', current_topic='solenoid_current_cmd')
+    assert rec.dt == pytest.approx(1e-3, rel=1e-9) and rec.t.size == 3000
+    np.testing.assert_array_equal(rec.flow, flow)
+    expect = cmd[np.searchsorted(t_cmd - T0, rec.t + 1e-12, side='right') - 1]
+    np.testing.assert_array_equal(rec.current, expect)
+    assert any('held since' in n for n in rec.notes)
+
+
+def test_compressed_bag(tmp_path):
+    from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+
+    from hydropump_ctrl.recording import _typestore
+    ts = _typestore()
+    t, cur, flow = _signals(1000)
+    w = Writer(tmp_path / 'z', version=9, storage_plugin=StoragePlugin.MCAP)
+    w.set_compression(CompressionMode.MESSAGE, CompressionFormat.ZSTD)
+    with w:
+        conns = [w.add_connection(n, F64, typestore=ts) for n in ('/solenoid_current',
+                                                                   '/line_flow')]
+        cls = ts.types[F64]
+        for tk, c, q in zip(t, cur, flow):
+            for conn, val in zip(conns, (c, q)):
+                w.write(conn, int(round(tk * 1e9)), ts.serialize_cdr(cls(data=val), F64))
+    rec = read_recording(tmp_path / 'z')
+    np.testing.assert_array_equal(rec.current, cur)
+    np.testing.assert_array_equal(rec.flow, flow)
+
+
 def test_resampling_holds_the_current_and_interpolates_the_flow(tmp_path):
     # Current at 1 kHz, flow at 500 Hz stamped half a millisecond later, unsorted, one
     # duplicate stamp.
