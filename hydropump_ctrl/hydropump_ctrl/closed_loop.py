@@ -146,11 +146,15 @@ def dither_free(t: np.ndarray, y: np.ndarray, f_dither: float) -> np.ndarray:
     per = 1.0 / (f_dither * dt)
     k = min(range(1, 11), key=lambda k: abs(k * per - round(k * per)))
     w = max(int(round(k * per)), 1)
-    if w < 2:
-        return np.asarray(y, dtype=float)
+    y = np.asarray(y, dtype=float)
+    if w < 2 or y.size < w:
+        return y
+    # Centred window inside; at the ends the nearest full window (never a padded one, which
+    # would weigh one phase of the ripple twice).
+    c = np.concatenate([[0.0], np.cumsum(y)])
     left = w // 2
-    ypad = np.pad(np.asarray(y, dtype=float), (left, w - 1 - left), mode='edge')
-    return np.convolve(ypad, np.ones(w) / w, mode='valid')
+    start = np.clip(np.arange(y.size) - left, 0, y.size - w)
+    return (c[start + w] - c[start]) / w
 
 
 def trim_current(params: Params, *, flow: float | None = None, margin: float | None = None,

@@ -95,7 +95,9 @@ class Controller:
         if bad:
             raise ParamError(bad)
         self._cfg = new
-        self._excitation = ExcitationSignal(new.excitation, self._pump)
+        if new.excitation != self._excitation.cfg:
+            # A new experiment starts at the next update.
+            self._t_mode = None
         self._configure(new)
         if new.reference.flow != old_flat['reference.flow']:
             self.set_reference(new.reference.flow, 'flow')
@@ -196,6 +198,9 @@ class Controller:
         if self.mode == 'open_loop':
             if self._t_mode is None:
                 self._t_mode = t
+                # The experiment starts now, around the present command if it is relative.
+                self._excitation = ExcitationSignal(self._cfg.excitation, self._pump,
+                                                    self._command)
             desired = float(self._excitation(t - self._t_mode))
         elif timed_out:
             desired = lim.safe_current

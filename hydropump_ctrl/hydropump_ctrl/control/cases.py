@@ -8,7 +8,7 @@ sensor profile, controller at its rate) and returns the run with its figures in 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import itertools
 import math
 
@@ -178,6 +178,7 @@ MARGINS = (2.0e6, 3.0e6)                          # Pa
 APERTURES = (0.1, 0.5, 0.8)
 APERTURE_FACTORS = (1.2, 0.8)
 CURRENT_SPAN = 0.4                                # A, 0..100 % displacement (bench.yaml)
+SEEDS = tuple(range(1, 9))                        # sensor noise seeds of the averaged cases
 
 
 def one_at_a_time(scale: float = 0.2) -> list[PlantVariation]:
@@ -239,6 +240,11 @@ def evaluate(make: dict, params: Params, profile: SensorProfile, cfg) -> list[Ta
         R['unreachable'] = unreachable_case(f(), params, profile, 0.6 * FS, 1.1 * FS).figures
         R['shaft'] = [shaft_speed_case(f(), params, profile, 0.5 * FS, k).figures
                       for k in (0.9, 1.1)]
+        # Flow-mode disturbances are seen only through the noisy, delayed flow: the IAE ratio
+        # moves by +-8 % with the noise seed, so it is judged on the mean of SEEDS.
+        R['shaft_seeds'] = {k: [shaft_speed_case(f(), params, replace(profile, seed=s),
+                                                 0.5 * FS, k).figures['iae'] for s in SEEDS]
+                            for k in (0.9, 1.1)}
         R['load'] = [load_pressure_case(f(), params, profile, 2.5e6, xi, st).figures
                      for xi in APERTURES for st in (1.0e6, -1.0e6)]
         R['dither'] = [dither_case(f(), params, profile, 'flow', start_flow=0.5 * FS).figures,
@@ -350,18 +356,21 @@ def evaluate(make: dict, params: Params, profile: SensorProfile, cfg) -> list[Ta
         rows.append(TargetRow('EMC vs PI: aperture cases', 'IAE <= 0.9 x PI, peak no worse',
                               txt + (', peak no worse' if os_ok else ', peak WORSE'),
                               '(reference)', ok and os_ok))
-        txt, ok = _ratio_ok([f['iae'] for f in E['shaft']], [f['iae'] for f in P['shaft']],
-                            0.9)
+        ratios = {k: np.array(E['shaft_seeds'][k]) / np.array(P['shaft_seeds'][k])
+                  for k in (0.9, 1.1)}
         os_ok = all(abs(e['peak']) <= abs(p['peak']) + 0.0025 * FS
                     for e, p in zip(E['shaft'], P['shaft']))
-        rows.append(TargetRow('EMC vs PI: flow disturbance (shaft speed -10 %, +10 %)',
-                              'IAE <= 0.9 x PI, peak no worse',
+        txt = ', '.join(f'x{k:g}: mean {r.mean():.2f} (seeds {r.min():.2f}..{r.max():.2f})'
+                        for k, r in ratios.items())
+        rows.append(TargetRow(f'EMC vs PI: flow disturbance, shaft speed -/+10 % '
+                              f'({len(SEEDS)} noise seeds)', 'IAE <= 0.9 x PI, peak no worse',
                               txt + (', peak no worse' if os_ok else ', peak WORSE'),
-                              '(reference)', ok and os_ok))
-        txt, ok = _ratio_ok([f['iae'] for f in E['shaft']], [f['iae'] for f in P['shaft']],
-                            1.0)
+                              '(reference)',
+                              all(r.mean() <= 0.9 for r in ratios.values()) and os_ok))
         rows.append(TargetRow('EMC vs PI: flow disturbance, achievable target (docs)',
-                              'IAE <= 1.0 x PI, peak no worse', txt, '(reference)', ok and os_ok))
+                              'mean IAE <= 0.95 x PI and <= 1.05 x PI for every seed', txt,
+                              '(reference)', all(r.mean() <= 0.95 and r.max() <= 1.05
+                                                 for r in ratios.values()) and os_ok))
         txt, _ = _ratio_ok([f['iae'] for f in E['load']], [f['iae'] for f in P['load']], 0.9)
         rows.append(TargetRow('EMC vs PI: load pressure +-10 bar (information)', '-', txt,
                               '(reference)', None))

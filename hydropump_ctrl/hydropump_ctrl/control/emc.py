@@ -78,17 +78,27 @@ class EMCController(Controller):
         d_max = self._cfg.emc.disturbance_max
         return min(max(d, -d_max), d_max)
 
-    def _advance_delayed(self, v: float, dt: float, e: float | None) -> None:
-        """Step the delayed embedded model with the command ``v`` and the model error ``e``
-        (predictor-form noise estimator)."""
-        target = v + self._dm
-        gains = self._gains.branch(target - self._Qm)
-        Q, sensitive = self._pump.step(self._Qm, target, dt)
+    def _advance_delayed(self, Qm: float, dm: float, v: float, dt: float,
+                         e: float | None) -> tuple[float, float]:
+        """One step of the delayed embedded model ``(Q, d)`` with the command ``v`` and the
+        model error ``e`` (predictor-form noise estimator)."""
+        target = v + dm
+        gains = self._gains.branch(target - Qm)
+        Q, sensitive = self._pump.step(Qm, target, dt)
         if e is not None:
             Q += gains.l_Q * e
             if sensitive:
-                self._dm = self._clip_d(self._dm + gains.l_d * e)
-        self._Qm = min(max(Q, 0.0), self._pump.Q_max)
+                dm = self._clip_d(dm + gains.l_d * e)
+        return min(max(Q, 0.0), self._pump.Q_max), dm
+
+    def _predict(self, Qm: float, dm: float) -> float:
+        """Roll the delayed model over the stored commands to the present."""
+        hist, pump = self._hist, self._pump
+        Q = Qm
+        for j in range(self._gains.N - 2, -1, -1):
+            v_j, dt_j = hist[j]
+            Q = pump.step(Q, v_j + dm, dt_j)[0]
+        return Q
 
     # --- hooks -----------------------------------------------------------------------------
 
@@ -100,6 +110,7 @@ class EMCController(Controller):
         # A steady state explains the measured flow with the disturbance (eq. 11 offset).
         self._dm = self._clip_d(Q - v) if 0.0 < Q < pump.Q_max else 0.0
         self._Qm = self._Qhat = self._Qr = self._Qr_next = Q
+        self._Qs, self._ds = Q, self._dm
         self._hist = deque([(v, g.T)] * (g.N + 1), maxlen=g.N + 1)
         self._e = None
         self._line_corr = 0.0
@@ -113,23 +124,25 @@ class EMCController(Controller):
         self._lnk = math.log(max(Q, Q_FLOOR) / self._dp ** (1.0 / self._line.gamma_u))
 
     def _observe(self, dt: float, meas: Mapping[str, float]) -> None:
-        g, pump, hist, N = self._gains, self._pump, self._hist, self._gains.N
-        # Flow: the sample of t_k is the plant of t_k-N; compare it with the delayed model. In
-        # margin mode the undelayed margin carries the loop: the load-conductance estimate
-        # absorbs the pump model's error too (the margin depends on Q/k only), and the flow
-        # sample would add nothing but its noise (0.5 % FS is 6 % of the flow at xi = 0.1).
-        y = _value(meas, self._cfg.controller.flow_signal) if self.mode != 'margin' else None
-        e = None
-        if y is not None:
-            e = y - self._model_output(self._Qm, hist[N][0] + self._dm)
-        v_step, dt_step = hist[N - 1]
-        self._advance_delayed(v_step, dt_step, e)
-        # Predictor: roll the corrected model over the stored commands to the present.
-        Q = self._Qm
-        for j in range(N - 2, -1, -1):
-            v_j, dt_j = hist[j]
-            Q = pump.step(Q, v_j + self._dm, dt_j)[0]
-        self._Qhat = Q
+        g, hist, N = self._gains, self._hist, self._gains.N
+        # Flow: the sample of t_k is the plant of t_k-N; compare it with the delayed model.
+        y = _value(meas, self._cfg.controller.flow_signal)
+        v_out, v_step, dt_step = hist[N][0], hist[N - 1][0], hist[N - 1][1]
+        e = None if y is None else y - self._model_output(self._Qm, v_out + self._dm)
+        if self.mode == 'margin':
+            # The undelayed margin carries this loop: the load-conductance estimate absorbs
+            # the pump model's error too (the margin depends on Q/k only), and the flow
+            # sample would add nothing but its noise (0.5 % FS is 6 % of the flow at
+            # xi = 0.1). The controlling model runs uncorrected; a shadow copy keeps
+            # estimating the flow for a bumpless return to flow mode and for state().
+            e_s = None if y is None else y - self._model_output(self._Qs, v_out + self._ds)
+            self._Qs, self._ds = self._advance_delayed(self._Qs, self._ds, v_step, dt_step,
+                                                       e_s)
+            e = None
+        self._Qm, self._dm = self._advance_delayed(self._Qm, self._dm, v_step, dt_step, e)
+        if self.mode != 'margin':
+            self._Qs, self._ds = self._Qm, self._dm
+        self._Qhat = self._predict(self._Qm, self._dm)
         # Line: the pressure difference is not delayed; predictor-form estimator of the margin
         # and the load conductance (whose prediction is its present estimate).
         self._line_corr = 0.0
@@ -196,18 +209,30 @@ class EMCController(Controller):
             self._dpr = self._dp
 
     def _on_mode(self, old: str, new: str) -> None:
-        # Every state runs in every mode, so a switch needs no re-initialisation: the
-        # trajectories start from the present estimates.
+        # The trajectories start from the present estimates. Back from margin mode the flow
+        # estimate of the shadow takes over: the reference generator restarts there, so the
+        # command does not move (at rest v_r = Q_r and v = Q_hat - d_hat, the held command).
         if new == 'margin':
             self._dpr = self._dp
+        if old == 'margin':
+            self._Qm, self._dm = self._Qs, self._ds
+            self._Qhat = self._predict(self._Qm, self._dm)
+            self._Qr = self._Qr_next = self._Qhat
+
+    def _flow_estimate(self) -> float:
+        """Best present flow estimate: the shadow's in margin mode."""
+        if self.mode == 'margin':
+            return self._predict(self._Qs, self._ds)
+        return self._Qhat
 
     def _estimate(self, mode: str) -> float | None:
-        return self._Qhat if mode == 'flow' else self._dp
+        return self._flow_estimate() if mode == 'flow' else self._dp
 
     def _state(self) -> dict:
+        q = self._flow_estimate()
         return {
-            'estimate': self._dp if self.mode == 'margin' else self._Qhat,
-            'flow_estimate': self._Qhat, 'flow_trajectory': self._Qr, 'flow_target': self._r,
-            'disturbance': self._dm, 'margin_estimate': self._dp,
+            'estimate': self._dp if self.mode == 'margin' else q,
+            'flow_estimate': q, 'flow_trajectory': self._Qr, 'flow_target': self._r,
+            'disturbance': self._ds, 'margin_estimate': self._dp,
             'margin_trajectory': self._dpr, 'load_conductance': math.exp(self._lnk),
         }

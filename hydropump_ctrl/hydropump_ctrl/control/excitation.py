@@ -34,9 +34,12 @@ class ExcitationSignal:
         Length of one pass [s] (``inf`` for the sine).
     """
 
-    def __init__(self, cfg: Excitation, pump: PumpModel):
+    def __init__(self, cfg: Excitation, pump: PumpModel, present: float | None = None):
         self.cfg = cfg
         self.pump = pump
+        # A relative excitation is centred on the command at the start (``present``, A).
+        self._base = (present if cfg.relative and present is not None
+                      and cfg.signal != 'staircase' else None)
         rng = np.random.default_rng(cfg.seed)
         kind = cfg.signal
         if kind == 'staircase':
@@ -66,12 +69,14 @@ class ExcitationSignal:
 
     def _level(self, value: float) -> float:
         """An operating point in the configured unit to an absolute current [A]."""
+        if self._base is not None:
+            return self._base + self._amp(value)
         if self.cfg.unit == 'A':
             return float(value)
         return self.pump.current(self.pump.Q_max * value / 100.0)
 
     def _amp(self, value: float) -> float:
-        """An amplitude in the configured unit to a current change [A]."""
+        """An amplitude (or a shift) in the configured unit to a current change [A]."""
         if self.cfg.unit == 'A':
             return float(value)
         return self.pump.Q_max * value / 100.0 / self.pump.gain

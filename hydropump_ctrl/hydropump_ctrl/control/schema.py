@@ -212,8 +212,12 @@ class Excitation:
                        default='staircase', live=True)
     unit: str = spec('-', 'unit of levels, offset and amplitude: percent (of displacement) '
                      'or A', choices=('percent', 'A'), default='percent', live=True)
-    offset: float = spec('percent or A', 'operating point of prbs, chirp and sine', 0.0, 100.0,
-                         default=50.0, live=True)
+    offset: float = spec('percent or A', 'operating point of prbs, chirp and sine (a shift '
+                         'from the present command if relative)', -100.0, 100.0, default=50.0,
+                         live=True)
+    relative: bool = spec('-', 'prbs, chirp and sine around the command at the start of the '
+                          'experiment plus offset (bumpless entry); staircase levels stay '
+                          'absolute', default=False, live=True)
     amplitude: float = spec('percent or A', 'step height (staircase) or amplitude', 0.0, 100.0,
                             default=10.0, live=True)
     levels_min: float = spec('percent or A', 'lowest staircase operating point', 0.0, 100.0,
@@ -383,17 +387,20 @@ def _cross_checks(c: ControllerConfig, lo_hi: tuple[float, float] | None) -> lis
             out.append(f'{g}.u_clamp_min = {pg.u_clamp_min:g} A must be below {g}.u_clamp_max'
                        f' = {pg.u_clamp_max:g} A')
     x = c.excitation
-    if x.levels_min > x.levels_max:
+    used = (('levels_min', 'levels_max', 'amplitude') if x.signal == 'staircase'
+            else ('offset', 'amplitude'))
+    if x.signal == 'staircase' and x.levels_min > x.levels_max:
         out.append(f'excitation.levels_min = {x.levels_min:g} exceeds excitation.levels_max = '
                    f'{x.levels_max:g}')
-    if x.unit == 'percent':
-        for name in ('offset', 'levels_min', 'levels_max'):
-            if getattr(x, name) > 100.0:
-                out.append(f'excitation.{name} = {getattr(x, name):g} % of displacement is '
-                           'beyond 100 %')
-    elif x.offset > 5.0 or x.levels_max > 5.0 or x.amplitude > 5.0:
-        out.append('excitation: levels, offset and amplitude in A must be at most 5 A '
-                   '(percent values with unit A?)')
+    top = 100.0 if x.unit == 'percent' else 5.0
+    for name in used:
+        if name == 'offset' and not x.relative and x.offset < 0.0:
+            out.append(f'excitation.offset = {x.offset:g} is negative; only a relative '
+                       'excitation may shift down')
+        if getattr(x, name) > top:
+            out.append(f'excitation.{name} = {getattr(x, name):g} is beyond {top:g} '
+                       f'{"% of displacement" if x.unit == "percent" else "A"} '
+                       f'(excitation.unit = {x.unit})')
     return out
 
 
