@@ -97,15 +97,22 @@ class LockStepDriver:
         self.period_ns = int(round(period * 1e9))
         self.answered = -1
         self.t = 0.0
+        self.active = True
         self._msg = Float64
         self.pub = node.create_publisher(Float64, topic, 10)
         node.create_subscription(Clock, '/clock', self._on_clock, 100)
+
+    def kick(self) -> None:
+        """Answer the instant t = 0 if its /clock went by before this node matched."""
+        if self.answered < 0:
+            self.answered = 0
+            self.pub.publish(self._msg(data=float(self.schedule(0.0))))
 
     def _on_clock(self, msg) -> None:
         ns = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
         self.t = ns * 1e-9
         k = ns // self.period_ns
-        if ns % self.period_ns == 0 and k > self.answered:
+        if self.active and ns % self.period_ns == 0 and k > self.answered:
             self.answered = k
             self.pub.publish(self._msg(data=float(self.schedule(self.t))))
 

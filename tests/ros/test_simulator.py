@@ -93,7 +93,7 @@ def test_current_step_follows_the_plant_library(nodes, test_node):
     driver = LockStepDriver(test_node, schedule)
     wait_for_subscriber(test_node, 'solenoid_current_cmd')
     wait_for_publisher(test_node, 'line_flow')
-    driver.pub.publish(driver._msg(data=I0))  # the first period, if /clock 0 was missed
+    driver.kick()
     spin_until(test_node, lambda: driver.t >= 0.4, 60, 'simulation time 0.4 s')
     t, q = col.series('line_flow')
     ref = simulate(p, 0.4, lambda tt: np.where(tt < 0.05, I0, I1))

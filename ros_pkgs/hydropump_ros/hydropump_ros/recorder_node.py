@@ -15,6 +15,9 @@ kill (SIGKILL) loses at most ``flush_period + reorder_window`` (0.35 s by defaul
 backlog, and the bag then has no summary and no ``metadata.yaml``: the project's reader
 reads it anyway, and ``ros2 bag reindex`` rebuilds the metadata. SIGINT and SIGTERM close
 the bag cleanly.
+
+Services (``std_srvs/Trigger``): ``~/start`` opens a bag, ``~/stop`` waits for the queues to go
+quiet and closes it, ``~/ready`` answers whether every topic has a matched publisher.
 """
 
 from __future__ import annotations
@@ -24,14 +27,19 @@ from datetime import datetime
 import heapq
 import importlib
 from pathlib import Path
+import signal
 import struct
 import sys
 import threading
+import time
 
 import rclpy
-from rclpy.executors import ExternalShutdownException
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.clock import Clock, ClockType
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.task import Future
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import get_typestore, Stores
 from std_srvs.srv import Trigger
@@ -70,8 +78,6 @@ SPECS = [
               'time with use_sim_time)', (0.01, 10.0), None, False, False),
     ParamSpec('reorder_window', float, 's', 'hold messages this long to write them in time '
               'order', (0.0, 5.0), None, False, False),
-    ParamSpec('qos_depth', int, '-', 'subscription queue depth', (1, 100000), None, False,
-              False),
 ]
 
 
@@ -80,8 +86,8 @@ def _msg_class(msgtype: str):
     return getattr(importlib.import_module(f'{pkg}.msg'), name)
 
 
-def _header_stamp(data: bytes) -> int | None:
-    """Header stamp [ns] of a serialized message whose first field is a Header, else None."""
+def _header_stamp(data: bytes) -> int:
+    """Stamp [ns] of a serialized message that starts with a Header (or a Clock)."""
     little = data[1] == 1  # CDR encapsulation: 0x0001 little endian, 0x0000 big endian
     sec, nsec = struct.unpack_from('<iI' if little else '>iI', data, 4)
     return sec * 1_000_000_000 + nsec
@@ -140,12 +146,11 @@ class RecorderNode(Node):
     def __init__(self, **kwargs):
         super().__init__('recorder', **kwargs)
         defaults = {'topics': DEFAULT_TOPICS, 'output': '', 'autostart': True,
-                    'flush_period': 0.25, 'reorder_window': 0.1, 'qos_depth': 1000}
+                    'flush_period': 0.25, 'reorder_window': 0.1}
         self.cfg = {}
         for s in SPECS:
             d = bridge.descriptor(s, read_only=not s.live) if s.type is not list else None
-            value = defaults[s.name]
-            self.cfg[s.name] = self.declare_parameter(s.name, value, d).value
+            self.cfg[s.name] = self.declare_parameter(s.name, defaults[s.name], d).value
         self.sim_time = self.get_parameter('use_sim_time').value
         self.typestore = get_typestore(Stores.ROS2_JAZZY)
         self._lock = threading.Lock()
@@ -154,49 +159,82 @@ class RecorderNode(Node):
         self._clocks: deque = deque(maxlen=100000)   # (source ns, clock ns)
         self._pending: list = []                     # unstamped, waiting for a later clock
         self._latest: dict[str, int] = {}            # topic -> last log time
-        self._topics = []
-        qos = QoSProfile(depth=self.cfg['qos_depth'], reliability=ReliabilityPolicy.RELIABLE,
-                         history=HistoryPolicy.KEEP_LAST)
-        self._qos = qos
-        self._subscribed: set[str] = set()
+        self._last_rx = time.monotonic()
+        self._drain_waiters: list = []
         self._types: dict[str, str] = {}
-        self.create_subscription(_msg_class('rosgraph_msgs/msg/Clock'), '/clock',
-                                 self._on_clock, qos, raw=True)
-        for i, name in enumerate(self.cfg['topics']):
-            topic = self.resolve_topic_name(name)
-            self._topics.append(topic)
+        # Reliable and keep-all on both ends: a recorder that lags buffers instead of
+        # dropping, and catches up before a stop closes the bag.
+        self._qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                               history=HistoryPolicy.KEEP_ALL)
+        # The data subscriptions live on a hidden node that no executor spins: a take loop
+        # serves them, at about four times the rate rclpy's executor reaches. Names are
+        # resolved (remapped) by this node first.
+        self._io = Node(f'_{self.get_name()}_io', namespace=self.get_namespace(),
+                        context=self.context, use_global_arguments=False,
+                        start_parameter_services=False)
+        self._subs: list = []  # (subscription, topic, order, stamped); order -1 is /clock
+        self._add(self.resolve_topic_name('/clock'), 'rosgraph_msgs/msg/Clock', -1)
+        self._topics = [self.resolve_topic_name(name) for name in self.cfg['topics']]
+        for i, (name, topic) in enumerate(zip(self.cfg['topics'], self._topics)):
             msgtype = KNOWN_TYPES.get(name) or KNOWN_TYPES.get(topic)
             if msgtype:
-                self._subscribe(topic, msgtype, i)
-        if len(self._subscribed) < len(self._topics):
-            self._discovery = self.create_timer(0.5, self._discover)
+                self._add(topic, msgtype, i)
+        # Steady-clock timers: with use_sim_time a paused simulator would stop them.
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        if len(self._types) - 1 < len(self._topics):
+            self._discovery = self.create_timer(0.5, self._discover, clock=steady)
         self.create_service(Trigger, '~/start', self._on_start)
         self.create_service(Trigger, '~/stop', self._on_stop)
+        self.create_service(Trigger, '~/ready', self._on_ready)
+        # Its own group: a stop waiting (suspended) in the default group must not block it.
+        self.create_timer(0.05, self._check_drained,
+                          callback_group=MutuallyExclusiveCallbackGroup(), clock=steady)
+        self._halt = False
+        self._taker = threading.Thread(target=self._take_loop, name='take', daemon=True)
         if self.cfg['autostart']:
             self.start()
+        self._taker.start()
 
     # ---- subscriptions -------------------------------------------------------------------
 
-    def _subscribe(self, topic: str, msgtype: str, order: int) -> None:
-        self._types[topic] = msgtype
+    def _add(self, topic: str, msgtype: str, order: int) -> None:
         cls = _msg_class(msgtype)
-        stamped = hasattr(cls, 'header') and cls.get_fields_and_field_types().get(
-            'header') == 'std_msgs/Header' and next(iter(cls.get_fields_and_field_types())) \
-            == 'header'
-        self.create_subscription(cls, topic, lambda data, info: self._on_message(
-            topic, order, stamped, data, info), self._qos, raw=True)
-        self._subscribed.add(topic)
+        fields = list(cls.get_fields_and_field_types().items())
+        stamped = bool(fields) and fields[0] == ('header', 'std_msgs/Header')
+        sub = self._io.create_subscription(cls, topic, lambda *_: None, self._qos, raw=True)
         with self._lock:
-            if self._bag is not None:
+            self._types[topic] = msgtype
+            self._subs.append((sub, topic, order, stamped))
+            if self._bag is not None and order >= 0:
                 self._bag.connection(topic, msgtype)
 
     def _discover(self) -> None:
         graph = dict(self.get_topic_names_and_types())
         for i, topic in enumerate(self._topics):
-            if topic not in self._subscribed and topic in graph:
-                self._subscribe(topic, graph[topic][0], i)
-        if len(self._subscribed) == len(self._topics):
+            if topic not in self._types and topic in graph:
+                self._add(topic, graph[topic][0], i)
+        if all(t in self._types for t in self._topics):
             self._discovery.cancel()
+
+    def _take_loop(self) -> None:
+        while not self._halt:
+            got = 0
+            for sub, topic, order, stamped in list(self._subs):
+                handle = sub.handle
+                while True:
+                    taken = handle.take_message(sub.msg_type, True)
+                    if taken is None:
+                        break
+                    got += 1
+                    data, info = taken
+                    if order < 0:
+                        self._on_clock(data, info)
+                    else:
+                        self._on_message(topic, order, stamped, data, info)
+            if got:
+                self._last_rx = time.monotonic()
+            else:
+                time.sleep(0.0005)
 
     def _on_message(self, topic, order, stamped, data, info) -> None:
         with self._lock:
@@ -216,9 +254,7 @@ class RecorderNode(Node):
                 bag.write_until(now, int(self.cfg['flush_period'] * 1e9))
 
     def _on_clock(self, data, info) -> None:
-        little = data[1] == 1
-        sec, nsec = struct.unpack_from('<iI' if little else '>iI', data, 4)
-        clock_ns = sec * 1_000_000_000 + nsec
+        clock_ns = _header_stamp(data)  # Clock starts with its time, laid out as a stamp
         src = info['source_timestamp']
         with self._lock:
             self._clocks.append((src, clock_ns))
@@ -289,6 +325,22 @@ class RecorderNode(Node):
         self.get_logger().info(f'closed {bag.path}: {bag.count} messages')
         return bag.path, bag.count
 
+    def _on_ready(self, request, response):
+        """Ready when every recorded topic has a matched publisher: an experiment that
+        starts after this loses nothing to discovery."""
+        matched = {topic: sub.get_publisher_count() for sub, topic, _, _ in self._subs}
+        waiting = [t for t in self._topics if matched.get(t, 0) < 1]
+        response.success = not waiting
+        response.message = ('waiting for a publisher on ' + ', '.join(waiting) if waiting
+                            else 'all topics matched')
+        return response
+
+    def halt(self) -> None:
+        """End the take loop and the hidden subscription node."""
+        self._halt = True
+        self._taker.join(timeout=2.0)
+        self._io.destroy_node()
+
     def _on_start(self, request, response):
         try:
             path = self.start()
@@ -298,7 +350,26 @@ class RecorderNode(Node):
         response.success, response.message = True, str(path)
         return response
 
-    def _on_stop(self, request, response):
+    def drain(self, quiet: float = 0.2, limit: float = 5.0) -> None:
+        """Wait until no message arrived for ``quiet`` s (at most ``limit`` s), so that a
+        stop after the publishers went quiet (a paused or waiting simulator) loses nothing."""
+        end = time.monotonic() + limit
+        while time.monotonic() - self._last_rx < quiet and time.monotonic() < end:
+            time.sleep(0.02)
+
+    def _check_drained(self, quiet: float = 0.2, limit: float = 5.0) -> None:
+        now = time.monotonic()
+        for fut, t0 in list(self._drain_waiters):
+            if now - self._last_rx >= quiet or now - t0 >= limit:
+                self._drain_waiters.remove((fut, t0))
+                fut.set_result(True)
+
+    async def _on_stop(self, request, response):
+        # Wait (without blocking the executor, which keeps taking messages) until the
+        # publishers have gone quiet, then close.
+        fut = Future()
+        self._drain_waiters.append((fut, time.monotonic()))
+        await fut
         done = self.stop()
         response.success = done is not None
         response.message = f'{done[0]} ({done[1]} messages)' if done else 'not recording'
@@ -306,15 +377,32 @@ class RecorderNode(Node):
 
 
 def main(args=None) -> int:
-    if not bridge.init_or_exit(args):
+    # Signals are handled here, not by rclpy, so that SIGINT and SIGTERM can first take what
+    # is still queued and then close the bag while the context is alive.
+    from rclpy.signals import SignalHandlerOptions
+    try:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except Exception as exc:  # rclpy raises RCLError for a bad command line
+        print(f'error: cannot start: {exc}', file=sys.stderr)
         return 2
     node = RecorderNode()
+    # One thread takes every message in arrival order; rclpy's multi-threaded executor
+    # loses messages at the suite's 10 kHz message rate (measured in bench/bench_ros.py).
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    stop = threading.Event()
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
     try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
+        stop.wait()
+        node.drain(quiet=0.2, limit=10.0)
         node.stop()
+    finally:
+        executor.shutdown(timeout_sec=2.0)
+        spinner.join(timeout=2.0)
+        node.halt()
         node.destroy_node()
         rclpy.try_shutdown()
     return 0

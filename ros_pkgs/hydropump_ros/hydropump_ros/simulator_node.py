@@ -24,9 +24,11 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 import rclpy
+from rclpy.clock import Clock as RosClock
+from rclpy.clock import ClockType
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import FluidPressure, JointState
 from std_msgs.msg import Float64
@@ -84,6 +86,8 @@ NODE_SPECS = [
               '50 % displacement)', (0.0, 5.0), None, False, False),
     ParamSpec('diagnostics_period', float, 's', 'period of /diagnostics (steady clock)',
               (0.1, 60.0), None, False, False),
+    ParamSpec('start_paused', bool, '-', 'wait for ~/pause false before publishing t = 0, so '
+              'that every peer is matched first', (None, None), None, False, False),
 ]
 
 LIVE_INPUTS = {'line.P_u': 'load_pressure', 'line.xi_u': 'aperture', 'pump.f_p': 'shaft_speed'}
@@ -122,7 +126,9 @@ class SimulatorNode(Node):
         super().__init__('simulator', **kwargs)
         self._lock = threading.Condition()
         self._configure()
-        qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        # Keep-all: a slow reliable reader (the recorder) gets every step, late, not fewer.
+        qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                         history=HistoryPolicy.KEEP_ALL)
         self._pub_clock = self.create_publisher(Clock, '/clock', qos)
         self._pub_js = self.create_publisher(JointState, 'joint_states', qos)
         self._pub_p = {k: self.create_publisher(FluidPressure, k, qos) for k in PRESSURE_TOPICS}
@@ -134,7 +140,8 @@ class SimulatorNode(Node):
         self.create_service(SetBool, '~/pause', self._on_pause)
         self.add_pre_set_parameters_callback(self._explain_rejection)
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        self.create_timer(self._cfg['diagnostics_period'], self._publish_diagnostics)
+        self.create_timer(self._cfg['diagnostics_period'], self._publish_diagnostics,
+                          clock=RosClock(clock_type=ClockType.STEADY_TIME))
         self._stop = False
         self._thread = threading.Thread(target=self._run, name='stepper', daemon=True)
         self._thread.start()
@@ -175,7 +182,8 @@ class SimulatorNode(Node):
         node_defaults = {'dt': 1e-3, 'publish_rate': 1000.0, 'real_time_factor': 1.0,
                          'lock_step': False, 'control_period': 0.005, 'lock_step_timeout': 1.0,
                          'command_timeout': 0.5, 'safe_current': lo,
-                         'initial_current': self.params.I_nominal, 'diagnostics_period': 1.0}
+                         'initial_current': self.params.I_nominal, 'diagnostics_period': 1.0,
+                         'start_paused': False}
         more, errs = bridge.declare(self, NODE_SPECS[3:], node_defaults)
         cfg.update(more)
         errors += errs
@@ -219,7 +227,7 @@ class SimulatorNode(Node):
         self._last_cmd_wall = None
         self._watchdog = False
         if initial:
-            self._paused = False
+            self._paused = self._cfg['start_paused']
             self._failed = None
             self._stats = {'nan_commands': 0, 'clamped_commands': 0, 'lock_step_timeouts': 0,
                            'watchdog_trips': 0}
@@ -295,6 +303,8 @@ class SimulatorNode(Node):
         try:
             self._loop()
         except Exception as exc:  # keep the node alive and say why stepping stopped
+            if self._stop or not self.context.ok():
+                return  # shutting down: publishers are gone
             self._failed = f'{type(exc).__name__}: {exc}'
             self.get_logger().error(f'stepping stopped: {self._failed}')
 
@@ -302,6 +312,9 @@ class SimulatorNode(Node):
         """Per step: inputs held from t_k (in lock-step, after the period's command), the
         applied current, pacing, one increment, then ``/clock`` and the measurements of
         t_k+1."""
+        with self._lock:
+            while self._paused and not self._stop:
+                self._lock.wait(0.1)
         next_wall = time.monotonic()
         last_wall = None
         self._publish(self.sim.outputs())
