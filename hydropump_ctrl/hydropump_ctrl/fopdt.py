@@ -261,16 +261,18 @@ class Dither:
         return self.amp * np.sin(2.0 * math.pi * self.freq * t + self.phase)
 
 
-def detect_dither(u, dt: float, *, min_ratio: float = 100.0, max_lines: int = 3
-                  ) -> list[Dither]:
+def detect_dither(u, dt: float, *, min_ratio: float = 100.0, max_lines: int = 3,
+                  min_freq: float = 20.0, min_amp: float = 5e-4) -> list[Dither]:
     """Find sinusoidal dither lines in a (staircase) current.
 
     The differenced current turns the staircase into isolated spikes (a flat spectrum) and
     keeps a sinusoid a spectral line. A line whose periodogram stands ``min_ratio`` times
-    above the median (5 Hz to Nyquist; an aliased dither shows at its alias) is refined in
-    frequency and fitted by least squares on the differences, leaving out the step samples;
-    then the next line is sought (harmonics of a non-sinusoidal dither), up to
-    ``max_lines``.
+    above the median, between ``min_freq`` and Nyquist (an aliased dither shows at its
+    alias), is refined in frequency and fitted by least squares on the differences, leaving
+    out the step samples; then the next line is sought (harmonics of a non-sinusoidal
+    dither), up to ``max_lines``. ``min_freq`` keeps a slow sinusoidal excitation (a test
+    signal inside the plant's 1.6 Hz bandwidth) from being taken for dither; lines below
+    ``min_amp`` (current fraction; 0.05 %, below the bench's quantum) are left alone.
     """
     u = np.asarray(u, dtype=float)
     t = np.arange(u.size) * dt
@@ -281,17 +283,19 @@ def detect_dither(u, dt: float, *, min_ratio: float = 100.0, max_lines: int = 3
         return lines
     nfft = sfft.next_fast_len(4 * n)
     fr = np.fft.rfftfreq(nfft, dt)
-    band = fr >= 5.0
+    band = fr >= min_freq
     win = np.hanning(n)
     kk = np.arange(n) * dt
     for _ in range(max_lines):
         P = np.abs(np.fft.rfft((du - du.mean()) * win, nfft)) ** 2
         pb = np.where(band, P, 0.0)
         k = int(np.argmax(pb))
-        if pb[k] < min_ratio * float(np.median(P[band])):
+        # A line stands out of the floor and is a peak, not the skirt of a slow signal's
+        # spectrum at the band's lower edge.
+        if pb[k] < min_ratio * float(np.median(P[band])) or not band[k - 1]:
             break
         df = fr[1] - fr[0]
-        lo_f, hi_f = max(fr[k] - df, 5.0), min(fr[k] + df, 0.5 / dt)
+        lo_f, hi_f = max(fr[k] - df, min_freq), min(fr[k] + df, 0.5 / dt)
         f0 = optimize.minimize_scalar(
             lambda f, du=du: -abs(np.sum(du * np.exp(-2j * math.pi * f * kk))),
             bounds=(lo_f, hi_f),
@@ -307,6 +311,8 @@ def detect_dither(u, dt: float, *, min_ratio: float = 100.0, max_lines: int = 3
         # amp sin(wt + phase) = (amp cos phase) sin wt + (amp sin phase) cos wt
         line = Dither(freq=float(f0), amp=float(math.hypot(*coef)),
                       phase=float(math.atan2(coef[1], coef[0])))
+        if line.amp < min_amp:
+            break
         lines.append(line)
         du = du - np.diff(line.at(t))
     return lines

@@ -95,6 +95,8 @@ def test_dither_line_is_found_and_measured():
     assert line.amp == pytest.approx(0.03, rel=0.01)
     assert np.max(np.abs(line.at(t) - 0.03 * np.sin(2 * math.pi * 150.0 * t + 0.7))) < 1e-3
     assert fp.detect_dither(syn.level_at(steps, t), dt) == []
+    # A slow sinusoidal test signal is excitation, not dither.
+    assert fp.detect_dither(0.5 + 0.1 * np.sin(2 * math.pi * 1.0 * t), dt) == []
 
 
 def test_noise_free_data_are_fitted_exactly():
