@@ -24,9 +24,15 @@ Two methods:
     delay (no Pade, no rounding to whole samples), a free offset and a free initial state; a
     global grid over the delay (all whole-sample delays in the bounds, each with the best
     ``tau`` of a log grid, the linear parameters solved in closed form), then a bounded local
-    least-squares fit of all parameters from the best grid minima. Results on a bound are
-    flagged; standard errors come from the Jacobian with a Newey-West correction for
-    coloured residuals.
+    least-squares fit of all parameters from the best grid minima. A sinusoidal dither on
+    the current (not held between samples) is taken out of the input and fitted as a free
+    sinusoid in the flow. Results on a bound are flagged; standard errors come from the
+    Jacobian with a Newey-West correction for coloured residuals.
+
+Several sets: per-set fits, their mean ± standard deviation (the paper's convention), and a
+joint fit of shared parameters (:func:`fit_joint`). Entry points: :func:`fit_bags`,
+:func:`fit_recordings`, :func:`fit_fopdt`. Details and the JSON schema:
+``docs/identification.md``.
 
 Exact sampled model. With the input held over ``[k T, (k+1) T)`` and ``t_d = (d + f) T``
 (``d`` whole samples, ``0 <= f < 1``), the delayed input changes inside each period at
