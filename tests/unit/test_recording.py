@@ -88,6 +88,17 @@ def test_header_stamps_are_used_where_present(tmp_path):
     np.testing.assert_array_equal(rec.flow, (1.5e7 + 1e5 * flow)[3:])
 
 
+def test_header_stamps_from_simulation_time_zero(tmp_path):
+    # The simulator stamps its first step 0 ns; the recorder logs at receive time.
+    t = np.arange(1000) * 1e-3
+    write_bag(tmp_path / 'bag', {'/solenoid_current': (F64, t, 0.5 + 0 * t),
+                                 '/line_pressure': (PRESSURE, t, 1.5e7 + t)},
+              log_offset_ns=2_000_000)
+    rec = read_recording(tmp_path / 'bag', flow_topic='line_pressure')
+    assert rec.time_source['flow'] == 'header'
+    np.testing.assert_array_equal(rec.flow, (1.5e7 + t)[2:])
+
+
 def test_independent_mcap_like_ros2_bag_record(tmp_path):
     # zstd-chunked MCAP from mcap-ros2-support and the metadata.yaml Jazzy writes.
     from mcap_ros2.writer import Writer
