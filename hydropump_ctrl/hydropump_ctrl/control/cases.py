@@ -243,7 +243,7 @@ def evaluate(make: dict, params: Params, profile: SensorProfile, cfg) -> list[Ta
         # Flow-mode disturbances are seen only through the noisy, delayed flow: the IAE ratio
         # moves by +-8 % with the noise seed, so it is judged on the mean of SEEDS.
         R['shaft_seeds'] = {k: [shaft_speed_case(f(), params, replace(profile, seed=s),
-                                                 0.5 * FS, k).figures['iae'] for s in SEEDS]
+                                                 0.5 * FS, k).figures for s in SEEDS]
                             for k in (0.9, 1.1)}
         R['load'] = [load_pressure_case(f(), params, profile, 2.5e6, xi, st).figures
                      for xi in APERTURES for st in (1.0e6, -1.0e6)]
@@ -356,10 +356,12 @@ def evaluate(make: dict, params: Params, profile: SensorProfile, cfg) -> list[Ta
         rows.append(TargetRow('EMC vs PI: aperture cases', 'IAE <= 0.9 x PI, peak no worse',
                               txt + (', peak no worse' if os_ok else ', peak WORSE'),
                               '(reference)', ok and os_ok))
-        ratios = {k: np.array(E['shaft_seeds'][k]) / np.array(P['shaft_seeds'][k])
+        ratios = {k: np.array([e['iae'] / p['iae'] for e, p in
+                               zip(E['shaft_seeds'][k], P['shaft_seeds'][k])])
                   for k in (0.9, 1.1)}
-        os_ok = all(abs(e['peak']) <= abs(p['peak']) + 0.0025 * FS
-                    for e, p in zip(E['shaft'], P['shaft']))
+        os_ok = all(np.mean([abs(f['peak']) for f in E['shaft_seeds'][k]])
+                    <= np.mean([abs(f['peak']) for f in P['shaft_seeds'][k]]) + 0.0025 * FS
+                    for k in (0.9, 1.1))
         txt = ', '.join(f'x{k:g}: mean {r.mean():.2f} (seeds {r.min():.2f}..{r.max():.2f})'
                         for k, r in ratios.items())
         rows.append(TargetRow(f'EMC vs PI: flow disturbance, shaft speed -/+10 % '

@@ -219,7 +219,28 @@ class Margins:
     stable: bool             # closed loop stable (all poles inside the unit circle)
 
 
-def loop_margins(L, n: int = 20000) -> Margins:
+def frequency_response(sys, w: np.ndarray) -> np.ndarray:
+    """Complex response of a discrete SISO system at ``w`` [rad/s], batched.
+
+    ``C (zI - A)^-1 B + D`` solved for blocks of frequencies at once (python-control solves one
+    frequency at a time, 50x slower for the loops here).
+    """
+    ss = control.ss(sys)
+    A, B = np.asarray(ss.A, dtype=complex), np.asarray(ss.B, dtype=complex)[:, :1]
+    C, D = np.asarray(ss.C, dtype=complex)[:1], complex(np.asarray(ss.D)[0, 0])
+    z = np.exp(1j * np.asarray(w) * ss.dt)
+    n = A.shape[0]
+    out = np.empty(z.size, dtype=complex)
+    eye = np.eye(n)
+    for i in range(0, z.size, 2000):
+        zz = z[i:i + 2000]
+        M = zz[:, None, None] * eye - A
+        x = np.linalg.solve(M, np.broadcast_to(B, (zz.size, n, 1)))
+        out[i:i + 2000] = (C @ x)[:, 0, 0] + D
+    return out
+
+
+def loop_margins(L, n: int = 4000) -> Margins:
     """Gain, phase and delay margins of a discrete SISO loop, scanned up to Nyquist.
 
     Every gain and phase crossover is examined (python-control's ``stability_margins`` may pick
@@ -229,10 +250,10 @@ def loop_margins(L, n: int = 20000) -> Margins:
     T = L.dt
     w = np.logspace(-2, math.log10(math.pi / T * (1.0 - 1e-6)), n)
     with warnings.catch_warnings():
-        # scipy flags the delay line's leading zeros as badly conditioned; the state-space
-        # evaluation below does not use those coefficients.
+        # scipy flags the delay line's leading zeros as badly conditioned when L is formed;
+        # the state-space evaluation does not use those coefficients.
         warnings.simplefilter('ignore')
-        H = np.asarray(control.frequency_response(L, w).complex).ravel()
+        H = frequency_response(L, w)
     mag = np.abs(H)
     ph = np.unwrap(np.angle(H))
     pm, dm, wgc = math.inf, math.inf, math.nan
