@@ -511,23 +511,33 @@ def _grid(tc, vc, tf, vf, dt, where, notes) -> tuple[int, np.ndarray, np.ndarray
     """Common uniform grid: the current held, the flow interpolated.
 
     The grid is built in integer nanoseconds, so a flow stamped on the grid is taken as is
-    (interpolation at a node returns the node's value exactly).
+    (interpolation at a node returns the node's value exactly). The current is rounded to
+    the nearest grid time, so that stamp jitter below half a period does not shift it.
     """
-    # The current holds its last value: the span ends with the flow.
-    t0 = int(max(tc[0], tf[0]))
-    t1 = int(tf[-1])
-    if t1 <= t0:
-        raise BagError(f'{where}: the current and flow topics do not overlap in time')
     if dt is None:
         # The flow's own period: the current is held, so it may be published at any rate
         # (a command published on change included).
         if tf.size < 2:
             raise BagError(f'{where}: too few flow messages to find the sample period')
-        p_ns = int(round(float(np.median(np.diff(tf)))))
+        # The mean of the regular steps (gaps left out) telescopes: exact for stamps on a
+        # grid, and within jitter / N for receive times, where the median drifts.
+        d = np.diff(tf)
+        med = float(np.median(d))
+        reg = d[(d > 0.5 * med) & (d < 1.5 * med)]
+        p_ns = int(round(float(reg.mean()) if reg.size else med))
     else:
         p_ns = int(round(dt * 1e9))
     if p_ns <= 0:
         raise BagError(f'{where}: the sample period must be positive')
+    # The grid starts on the first flow sample that has a current (within half a period)
+    # and ends with the flow: the current holds its last value.
+    first = int(np.searchsorted(tf, tc[0] - p_ns // 2))
+    if first >= tf.size:
+        raise BagError(f'{where}: the current and flow topics do not overlap in time')
+    t0 = int(tf[first])
+    t1 = int(tf[-1])
+    if t1 <= t0:
+        raise BagError(f'{where}: the current and flow topics do not overlap in time')
     n = (t1 - t0) // p_ns + 1
     g = t0 + np.arange(n, dtype=np.int64) * p_ns
     for topic, x in (('flow', tf),):
@@ -543,7 +553,10 @@ def _grid(tc, vc, tf, vf, dt, where, notes) -> tuple[int, np.ndarray, np.ndarray
     if g[-1] - tc[-1] > 10 * p_ns:
         notes.append(f'current: last message {(g[-1] - tc[-1]) * 1e-9:.3g} s before the end '
                      'of the flow, held since')
-    k = np.searchsorted(tc, g, side='right') - 1
+    # The current of grid time g is the last one stamped up to g + T/2: exact for stamps on
+    # the grid, and a current stamped at receive time just after the flow of its own step
+    # (ros2 bag record without simulation time) still pairs with that step.
+    k = np.searchsorted(tc, g + p_ns // 2, side='right') - 1
     cur = vc[np.clip(k, 0, vc.size - 1)]
     flow = np.interp((g - t0) * 1e-9, (tf - t0) * 1e-9, vf)
     return t0, (g - t0) * 1e-9, cur, flow
