@@ -251,105 +251,83 @@ def evaluate(make: dict, params: Params, profile: SensorProfile, cfg) -> list[Ta
                        dither_case(f(), params, profile, 'margin', start_margin=2.5e6,
                                    aperture=0.5).figures]
     E, P = run.get('EMC', {}), run.get('PI', {})
+    E['up'], E['down'] = [E['steps'][0]], [E['steps'][1]]
+    if P:
+        P['up'], P['down'] = [P['steps'][0]], [P['steps'][1]]
+    # (figure, label, scale to the display unit, unit, format)
+    rise = ('rise', 'rise', 1e3, 'ms', '.0f')
+    over = ('overshoot', 'OS', 1.0, '%', '.1f')
+    settle = ('settling', 'settle', 1e3, 'ms', '.0f')
+    e_ss = ('steady_error', 'e_ss', 100.0 / FS, '% FS', '.2f')
 
-    def col(R, fn):
-        return fn(R) if R else '-'
+    def worst_row(case, target, key, limits):
+        """Worst figure over the runs ``E[key]`` against ``limits`` (figure spec, limit)."""
+        def txt(fs):
+            return ', '.join(f'{lab} {max(f[k] for f in fs) * sc:{fmt}} {unit}'
+                             for (k, lab, sc, unit, fmt), _ in limits)
+        ok = all(max(f[k] for f in E[key]) <= lim for (k, *_), lim in limits
+                 if lim is not None)
+        return TargetRow(case, target, txt(E[key]), txt(P[key]) if P else '-', ok)
 
-    def step_txt(f):
-        return (f"rise {f['rise'] * 1e3:.0f} ms, OS {f['overshoot']:.1f} %, settle "
-                f"{f['settling'] * 1e3:.0f} ms, e_ss {f['steady_error'] / FS * 100:.2f} % FS")
-    up, dn = E['steps']
-    rows.append(TargetRow('flow step 30 -> 70 %', 'rise <= 150 ms, OS <= 5 %, settle <= 350 ms,'
-                          ' e_ss <= 0.5 % FS', step_txt(up), col(P, lambda R: step_txt(
-                              R['steps'][0])),
-                          up['rise'] <= 0.15 and up['overshoot'] <= 5.0
-                          and up['settling'] <= 0.35 and up['steady_error'] <= 0.005 * FS))
-    rows.append(TargetRow('flow step 70 -> 30 %', 'OS <= 10 %, settle <= 350 ms', step_txt(dn),
-                          col(P, lambda R: step_txt(R['steps'][1])),
-                          dn['overshoot'] <= 10.0 and dn['settling'] <= 0.35))
+    rows.append(worst_row('flow step 30 -> 70 %', 'rise <= 150 ms, OS <= 5 %, settle <= '
+                          '350 ms, e_ss <= 0.5 % FS', 'up', [(rise, 0.15), (over, 5.0),
+                                                             (settle, 0.35),
+                                                             (e_ss, 0.005 * FS)]))
+    rows.append(worst_row('flow step 70 -> 30 % (falling branch, zero)',
+                          'OS <= 10 %, settle <= 350 ms', 'down',
+                          [(rise, None), (over, 10.0), (settle, 0.35), (e_ss, None)]))
     m_up, m_dn = emc_flow_margins(cfg, 'up'), emc_flow_margins(cfg, 'down')
     p_up, p_dn = pi_flow_margins(cfg, 'up'), pi_flow_margins(cfg, 'down')
     mm = [emc_margin_margins(cfg, math.exp(-cfg.period / op[4]))
           for op in margin_operating_points(params)]
 
-    def mtxt(ms):
+    def margins_txt(ms):
         return (f'GM {min(m.gain_margin for m in ms):.1f} dB, PM '
                 f'{min(m.phase_margin for m in ms):.0f} deg, DM '
                 f'{min(m.delay_margin for m in ms) * 1e3:.0f} ms')
-    rows.append(TargetRow('margins, flow loop (eq. 19 / eq. 15, 55 ms delay)',
-                          'GM >= 6 dB, PM >= 45 deg, DM >= 25 ms', mtxt([m_up, m_dn]),
-                          mtxt([p_up, p_dn]), all(m.gain_margin >= 6 and m.phase_margin >= 45
-                                                  and m.delay_margin >= 0.025 and m.stable
-                                                  for m in (m_up, m_dn))))
-    rows.append(TargetRow('margins, margin loop (apertures 0.08..0.96)',
-                          'GM >= 6 dB, PM >= 45 deg, DM >= 25 ms', mtxt(mm), '-',
-                          all(m.gain_margin >= 6 and m.phase_margin >= 45
-                              and m.delay_margin >= 0.025 and m.stable for m in mm)))
 
-    def rob_txt(fs):
-        return (f"OS max {max(f['overshoot'] for f in fs):.1f} %, settle max "
-                f"{max(f['settling'] for f in fs) * 1e3:.0f} ms, e_ss max "
-                f"{max(f['steady_error'] for f in fs) / FS * 100:.2f} % FS")
-    one = E['one']
-    rows.append(TargetRow('+-20 % on G0, tau, t_d one at a time (up and down)',
-                          'OS <= 10 %, settle <= 500 ms, no e_ss (<= 0.5 % FS)', rob_txt(one),
-                          col(P, lambda R: rob_txt(R['one'])),
-                          max(f['overshoot'] for f in one) <= 10.0
-                          and max(f['settling'] for f in one) <= 0.5
-                          and max(f['steady_error'] for f in one) <= 0.005 * FS))
-    cor = E['corner']
-    rows.append(TargetRow('worst combined +-20 % corner (up and down)',
-                          'OS <= 30 %, settle <= 800 ms', rob_txt(cor),
-                          col(P, lambda R: rob_txt(R['corner'])),
-                          max(f['overshoot'] for f in cor) <= 30.0
-                          and max(f['settling'] for f in cor) <= 0.8))
-
-    def ap_txt(fs):
-        return (f"beyond {max(f['beyond'] for f in fs) / 1e5:+.2f} bar, recovery max "
-                f"{max(f['recovery'] for f in fs) * 1e3:.0f} ms, ripple max "
-                f"{max(f['ripple'] for f in fs) / 1e5:.2f} bar")
-    ap = E['aperture']
-    rows.append(TargetRow('aperture +-20 % at 0.1/0.5/0.8, 20 and 30 bar (12 cases)',
+    def margins_ok(ms):
+        return all(m.gain_margin >= 6 and m.phase_margin >= 45 and m.delay_margin >= 0.025
+                   and m.stable for m in ms)
+    for case, ms, pis in (('margins, flow loop (eq. 19 / eq. 15, 55 ms delay)',
+                           [m_up, m_dn], [p_up, p_dn]),
+                          ('margins, margin loop (apertures 0.08..0.96)', mm, None)):
+        rows.append(TargetRow(case, 'GM >= 6 dB, PM >= 45 deg, DM >= 25 ms', margins_txt(ms),
+                              margins_txt(pis) if pis else '-', margins_ok(ms)))
+    rows.append(worst_row('+-20 % on G0, tau, t_d one at a time (up and down)',
+                          'OS <= 10 %, settle <= 500 ms, no e_ss (<= 0.5 % FS)', 'one',
+                          [(over, 10.0), (settle, 0.5), (e_ss, 0.005 * FS)]))
+    rows.append(worst_row('worst combined +-20 % corner (up and down)',
+                          'OS <= 30 %, settle <= 800 ms', 'corner',
+                          [(over, 30.0), (settle, 0.8), (e_ss, None)]))
+    rows.append(worst_row('aperture +-20 % at 0.1/0.5/0.8, 20 and 30 bar (12 cases)',
                           'beyond quasi-static <= 1 bar, back in +-1 bar <= 300 ms, no limit '
-                          'cycle (ripple <= 1 bar)', ap_txt(ap), col(P, lambda R: ap_txt(
-                              R['aperture'])),
-                          max(f['beyond'] for f in ap) <= 1.0e5
-                          and max(f['recovery'] for f in ap) <= 0.3
-                          and max(f['ripple'] for f in ap) <= 1.0e5))
-
-    def sp_txt(fs):
-        return (f"rise max {max(f['rise'] for f in fs) * 1e3:.0f} ms, OS max "
-                f"{max(f['overshoot'] for f in fs):.1f} %, settle max "
-                f"{max(f['settling'] for f in fs) * 1e3:.0f} ms")
-    sp = E['setpoint']
-    rows.append(TargetRow('margin set-point 20 -> 25 bar (xi 0.1/0.5/0.8)',
-                          'rise <= 200 ms, OS <= 10 %, settle +-0.5 bar <= 400 ms', sp_txt(sp),
-                          col(P, lambda R: sp_txt(R['setpoint'])),
-                          max(f['rise'] for f in sp) <= 0.2
-                          and max(f['overshoot'] for f in sp) <= 10.0
-                          and max(f['settling'] for f in sp) <= 0.4))
-
-    def un_txt(f):
-        return (f"back in {f['recovery'] * 1e3:.0f} ms, undershoot "
-                f"{f['undershoot'] / FS * 100:.2f} % FS")
-    un = E['unreachable']
-    rows.append(TargetRow('unreachable demand (110 %) for 1 s, then 60 %',
-                          'back in +-1 % FS <= 350 ms, undershoot <= 2 % FS', un_txt(un),
-                          col(P, lambda R: un_txt(R['unreachable'])),
-                          un['recovery'] <= 0.35 and un['undershoot'] <= 0.02 * FS))
-
-    def di_txt(fs):
-        worst = max(max(f['ripple_dither'], f['ripple_alias']) for f in fs)
-        return f'{worst * 1e3:.2f} mA ({worst / CURRENT_SPAN * 100:.2f} % of 0.4 A)'
-    di = E['dither']
-    rows.append(TargetRow('dither 150 Hz (flow and margin mode)',
-                          'ripple at 150 Hz (and its 50 Hz alias) <= 1 % of 0.4 A', di_txt(di),
-                          col(P, lambda R: di_txt(R['dither'])),
-                          all(max(f['ripple_dither'], f['ripple_alias']) <= 0.01 * CURRENT_SPAN
-                              for f in di)))
+                          'cycle (ripple <= 1 bar)', 'aperture',
+                          [(('beyond', 'beyond', 1e-5, 'bar', '+.2f'), 1.0e5),
+                           (('recovery', 'recovery', 1e3, 'ms', '.0f'), 0.3),
+                           (('ripple', 'ripple', 1e-5, 'bar', '.2f'), 1.0e5)]))
+    rows.append(worst_row('margin set-point 20 -> 25 bar (xi 0.1/0.5/0.8)',
+                          'rise <= 200 ms, OS <= 10 %, settle +-0.5 bar <= 400 ms', 'setpoint',
+                          [(rise, 0.2), (over, 10.0), (settle, 0.4)]))
+    E['unreach'] = [E['unreachable']]
+    if P:
+        P['unreach'] = [P['unreachable']]
+    rows.append(worst_row('unreachable demand (110 %) for 1 s, then 60 %',
+                          'back in +-1 % FS <= 350 ms, undershoot <= 2 % FS', 'unreach',
+                          [(('recovery', 'back in', 1e3, 'ms', '.0f'), 0.35),
+                           (('undershoot', 'undershoot', 100.0 / FS, '% FS', '.2f'),
+                            0.02 * FS)]))
+    for R in (E, P):
+        for f in R.get('dither', ()):
+            f['ripple'] = max(f['ripple_dither'], f['ripple_alias'])
+    rows.append(worst_row('dither 150 Hz (flow and margin mode)',
+                          f'ripple at 150 Hz (and its 50 Hz alias) <= 1 % of '
+                          f'{CURRENT_SPAN:g} A', 'dither',
+                          [(('ripple', 'ripple', 1e3, 'mA', '.2f'), 0.01 * CURRENT_SPAN)]))
     if P:
         # "Overshoot" of a regulator after a disturbance: its peak deviation. EMC may not
         # exceed the PI's by more than one quantum of the bench sensor (0.1 bar, 0.25 % FS).
+        ap = E['aperture']
         txt, ok = _ratio_ok([f['iae'] for f in ap], [f['iae'] for f in P['aperture']], 0.9)
         os_ok = all(abs(e['peak']) <= abs(p['peak']) + 1.0e4
                     for e, p in zip(ap, P['aperture']))
