@@ -113,3 +113,18 @@ def test_missing_model_group_is_reported():
     with pytest.raises(ParamError) as exc:
         schema.config_from_dict({})
     assert any(line.startswith('model.gain: missing') for line in exc.value.lines)
+
+
+def test_eq2_range_is_checked_from_the_model_alone(cfg):
+    """Without the plant file the model group still bounds the commands to eq. 2."""
+    lo, hi = cfg.model.I_nominal - cfg.model.I_max, cfg.model.I_nominal + cfg.model.I_max
+    assert (cfg.limits.current_min, cfg.limits.current_max) == pytest.approx((lo, hi))
+    reason = schema.validate_parameter(cfg, 'limits.current_max', hi + 0.05)
+    assert reason is not None and 'eq. 2' in reason
+
+
+def test_make_controller_follows_the_algorithm(cfg):
+    from hydropump_ctrl.control import EMCController, make_controller, PIController
+    assert isinstance(make_controller(cfg), EMCController)
+    assert isinstance(make_controller(cfg.replace({'controller.algorithm': 'pi'})),
+                      PIController)

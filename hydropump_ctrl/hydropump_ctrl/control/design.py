@@ -377,6 +377,7 @@ def model_from_plant(params, G0: float = 100.0, tau: float = 0.1, t_d: float = 0
     return {
         'gain': G0 / 100.0 * params.Q_max / params.spool.I_max,
         'I_nominal': params.I_nominal,
+        'I_max': params.spool.I_max,
         'Q_bar': float(eq.Q_p),
         'Q_max': params.Q_max,
         'tau': tau,

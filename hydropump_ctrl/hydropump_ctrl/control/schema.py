@@ -99,6 +99,8 @@ class Model:
                        'G0/100 * V_p f_p / I_max (eq. 11)', 1.0e-6, 1.0)
     I_nominal: float = spec('A', 'absolute current of the mean flow Q_bar (eq. 2, i_s = 0)',
                             0.0, 5.0)
+    I_max: float = spec('A', 'half-width of the current range of eq. 2: commands stay in '
+                        'I_nominal +- I_max', 0.01, 5.0)
     Q_bar: float = spec('m^3/s', 'mean flow at I_nominal (eq. 8)', 0.0, 1.0e-2)
     Q_max: float = spec('m^3/s', 'full-displacement flow V_p f_p (the end stop)', 1.0e-6,
                         1.0e-2)
@@ -356,10 +358,12 @@ def _cross_checks(c: ControllerConfig, lo_hi: tuple[float, float] | None) -> lis
         out.append(f'limits.safe_current = {lim.safe_current:g} A is outside '
                    f'[limits.current_min, limits.current_max] = [{lim.current_min:g}, '
                    f'{lim.current_max:g}] A')
-    if lo_hi is not None and (lim.current_min < lo_hi[0] - 1e-12
-                              or lim.current_max > lo_hi[1] + 1e-12):
-        out.append(f'limits.current_min/max = [{lim.current_min:g}, {lim.current_max:g}] A '
-                   f'leave the current range of eq. 2, [{lo_hi[0]:g}, {lo_hi[1]:g}] A')
+    eq2 = (m.I_nominal - m.I_max, m.I_nominal + m.I_max)
+    for lo, hi, what in ((*eq2, 'model.I_nominal +- model.I_max'),
+                         *(((*lo_hi, 'the plant parameters'),) if lo_hi is not None else ())):
+        if lim.current_min < lo - 1e-12 or lim.current_max > hi + 1e-12:
+            out.append(f'limits.current_min/max = [{lim.current_min:g}, {lim.current_max:g}] A '
+                       f'leave the current range of eq. 2, [{lo:g}, {hi:g}] A ({what})')
     if m.Q_bar > m.Q_max:
         out.append(f'model.Q_bar = {m.Q_bar:g} m^3/s exceeds model.Q_max = {m.Q_max:g} m^3/s')
     if c.reference.flow > m.Q_max * 1.5:
