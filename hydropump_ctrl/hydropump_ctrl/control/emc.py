@@ -38,6 +38,8 @@ from .schema import ControllerConfig
 # (dp_cr_u) and the relative estimator would divide by almost nothing.
 DP_FLOOR = 1.0e4
 Q_FLOOR = 1.0e-9
+# Largest margin a load conductance is estimated for [Pa] (400 bar).
+DP_MAX = 4.0e7
 
 
 class EMCController(Controller):
@@ -122,6 +124,9 @@ class EMCController(Controller):
         self._pu = p_u
         self._q_line = Q
         self._lnk = math.log(max(Q, Q_FLOOR) / self._dp ** (1.0 / self._line.gamma_u))
+        e = 1.0 / self._line.gamma_u
+        self._lnk_min = math.log(Q_FLOOR / DP_MAX ** e)
+        self._lnk_max = math.log(pump.Q_max / DP_FLOOR ** e)
 
     def _observe(self, dt: float, meas: Mapping[str, float]) -> None:
         g, hist, N = self._gains, self._hist, self._gains.N
@@ -160,7 +165,9 @@ class EMCController(Controller):
             alpha = self._line.alpha(self._dp, self._q_line, dt)
             l_p, l_k = line_estimator_gains(alpha, gamma, g.poles['line_fast'],
                                             g.poles['line_slow'])
-            self._lnk += l_k * e_rel
+            # Bounded to the conductances a load can have (no flow at 400 bar .. full flow at
+            # the floor margin): a gross start-up mismatch must not drive exp() out of range.
+            self._lnk = min(max(self._lnk + l_k * e_rel, self._lnk_min), self._lnk_max)
             # The margin is propagated with the corrected conductance in _applied, which
             # already carries -gamma (1 - alpha) l_k e of the correction.
             self._line_corr = (l_p + gamma * (1.0 - alpha) * l_k) * e_rel

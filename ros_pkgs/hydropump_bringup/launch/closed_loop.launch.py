@@ -57,7 +57,7 @@ def generate_launch_description():
     controller = LifecycleNode(
         package='hydropump_ros', executable='controller', name='controller',
         namespace=namespace, output='screen',
-        parameters=[params_file, controller_params, sim_time, {'autostart': True}])
+        parameters=[controller_params, sim_time, {'autostart': True}])
     recorder = Node(
         package='hydropump_ros', executable='recorder', name='recorder',
         namespace=namespace, output='screen',

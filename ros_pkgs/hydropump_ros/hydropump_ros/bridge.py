@@ -26,7 +26,7 @@ from rclpy.exceptions import (
 )
 from rclpy.node import Node
 
-from hydropump_sim.params import check_value, ParamSpec  # noqa: F401 - re-exported
+from hydropump_sim.params import check_value, ParamSpec, read_yaml, ros_parameters
 
 # Parameters every rclpy node may receive without declaring them.
 _BUILTIN = ('use_sim_time', 'start_type_description_service')
@@ -106,6 +106,23 @@ def validate_live(specs: dict[str, ParamSpec], params) -> SetParametersResult:
         if err:
             return SetParametersResult(successful=False, reason=err)
     return SetParametersResult(successful=True)
+
+
+def file_defaults(path: str) -> dict:
+    """Flat ``{'group.key': value}`` defaults from a params file."""
+    doc = ros_parameters(read_yaml(path))
+    flat = {}
+    for g, grp in (doc or {}).items():
+        if isinstance(grp, dict):
+            for k, v in grp.items():
+                if isinstance(v, dict):
+                    for kk, vv in v.items():
+                        flat[f'{g}.{k}.{kk}'] = vv
+                else:
+                    flat[f'{g}.{k}'] = v
+        else:
+            flat[g] = grp
+    return flat
 
 
 def init_or_exit(args=None) -> bool:

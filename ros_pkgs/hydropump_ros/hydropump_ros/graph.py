@@ -39,9 +39,9 @@ def graph_commands(args) -> dict[str, list[str]]:
     sim_args += ['-p', f'lock_step:={str(args.lock_step).lower()}',
                  '-p', f'real_time_factor:={args.real_time_factor}']
     sim_time = ['-p', f'use_sim_time:={str(args.use_sim_time).lower()}']
-    ctrl_args = plant + sim_time + ['-p', 'autostart:=true']
+    ctrl_args = sim_time + ['-p', 'autostart:=true']
     if args.controller_params:
-        ctrl_args += ['--params-file', str(args.controller_params)]
+        ctrl_args += ['-p', f'config_file:={args.controller_params}']
     rec_args = sim_time + (['-p', f'output:={args.bag}'] if args.bag else [])
     cmds = {'simulator': node_command('simulator', args.namespace, sim_args),
             'controller': node_command('controller', args.namespace, ctrl_args),

@@ -41,8 +41,6 @@ from hydropump_sim.params import (
     ParamError,
     params_from_dict,
     ParamSpec,
-    read_yaml,
-    ros_parameters,
 )
 from hydropump_sim.params import iter_specs as plant_specs
 from hydropump_sim.scenario import load_scenario, ScenarioError
@@ -51,6 +49,7 @@ from hydropump_sim.sensors import (
     profile_from_dict,
     sensor_specs,
     SensorBank,
+    SIGNALS,
 )
 from hydropump_sim.simulate import IntegrationError
 
@@ -103,32 +102,21 @@ class StartupError(Exception):
         super().__init__('\n'.join(self.lines))
 
 
-def _file_defaults(path: str) -> dict:
-    """Flat ``{'group.key': value}`` defaults from a params file."""
-    doc = ros_parameters(read_yaml(path))
-    flat = {}
-    for g, grp in (doc or {}).items():
-        if isinstance(grp, dict):
-            for k, v in grp.items():
-                if isinstance(v, dict):
-                    for kk, vv in v.items():
-                        flat[f'{g}.{k}.{kk}'] = vv
-                else:
-                    flat[f'{g}.{k}'] = v
-        else:
-            flat[g] = grp
-    return flat
-
-
 class SimulatorNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__('simulator', **kwargs)
         self._lock = threading.Condition()
         self._configure()
-        # Keep-all: a slow reliable reader (the recorder) gets every step, late, not fewer.
-        qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
-                         history=HistoryPolicy.KEEP_ALL)
+        # Lock-step runs are for complete, repeatable records: keep-all makes a slow reliable
+        # reader (the recorder) hold the simulation back instead of losing steps. Paced and
+        # free runs keep the last second per topic, so a slow reader cannot slow them down.
+        if self._cfg['lock_step']:
+            qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                             history=HistoryPolicy.KEEP_ALL)
+        else:
+            qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                             history=HistoryPolicy.KEEP_LAST)
         self._pub_clock = self.create_publisher(Clock, '/clock', qos)
         self._pub_js = self.create_publisher(JointState, 'joint_states', qos)
         self._pub_p = {k: self.create_publisher(FluidPressure, k, qos) for k in PRESSURE_TOPICS}
@@ -154,7 +142,7 @@ class SimulatorNode(Node):
         errors += errs
         try:
             plant_file = cfg.get('params_file') or str(default_params_path())
-            plant_defaults = _file_defaults(plant_file)
+            plant_defaults = bridge.file_defaults(plant_file)
             profile_file = cfg.get('sensor_profile')
             sensor_defaults = {s.name: 0.0 for s in sensor_specs()}
             seed = 0
@@ -215,6 +203,8 @@ class SimulatorNode(Node):
         self._steps_per_period = max(1, int(round(cfg['control_period'] / dt)))
         self.sim = Simulator(self.params, dt=dt)
         self.sensors = SensorBank(self.profile, dt * self._publish_every)
+        self._make_messages()
+        self._y = self.sim.outputs()
         self._reset_state(initial=True)
 
     def _reset_state(self, initial: bool = False) -> None:
@@ -232,7 +222,6 @@ class SimulatorNode(Node):
             self._stats = {'nan_commands': 0, 'clamped_commands': 0, 'lock_step_timeouts': 0,
                            'watchdog_trips': 0}
             self._periods = []
-            self._flags = {}
 
     # ---- callbacks (executor thread) -----------------------------------------------------
 
@@ -384,57 +373,74 @@ class SimulatorNode(Node):
 
     # ---- publishing (stepping thread) ----------------------------------------------------
 
+    def _make_messages(self) -> None:
+        """Message objects reused every step (building them is most of a step's cost)."""
+        self._m_clock = Clock()
+        self._m_float = Float64()
+        self._m_p = {k: FluidPressure(variance=self.profile.spec(k).noise_std ** 2)
+                     for k in PRESSURE_TOPICS}
+        self._m_js = JointState(name=['spool', 'swash_plate_actuator'])
+        # Signals with an active sensor model go through it; the others pass unchanged.
+        self._sensed = {sig for sig in SIGNALS if self.profile.spec(sig).active}
+
+    def _measure(self, name: str, value: float) -> float:
+        if name in self._sensed:
+            return self.sensors.channels[name].update(value)
+        return value
+
     def _publish(self, y: np.ndarray) -> None:
-        t = self.sim.t
-        ns = int(round(t * 1e9))
-        clock = Clock()
+        ns = int(round(self.sim.t * 1e9))
+        clock = self._m_clock
         bridge.set_stamp(clock.clock, ns)
         self._pub_clock.publish(clock)
-        u = self.sim.u
-        true = {'pump_flow': y[Y['Q_p']], 'line_flow': y[Y['q_l']],
-                'load_flow': y[Y['Q_load']], 'actuator_pressure': y[Y['P_a']],
-                'line_pressure': y[Y['P_l']], 'load_pressure': float(u[1]),
-                'spool_position': y[Y['x_c']], 'actuator_position': y[Y['x_a']]}
-        meas = self.sensors.measure(true)
-        for topic, pub in self._pub_f.items():
-            pub.publish(Float64(data=float(meas[topic])))
+        f = self._m_float
+        for topic, out in FLOW_TOPICS.items():
+            f.data = float(self._measure(topic, y[Y[out]]))
+            self._pub_f[topic].publish(f)
         p_atm = self.params.fluid.p_atm
-        for topic, pub in self._pub_p.items():
-            msg = FluidPressure()
+        gauge = {'actuator_pressure': y[Y['P_a']], 'line_pressure': y[Y['P_l']],
+                 'load_pressure': self.sim.u[1]}
+        for topic, msg in self._m_p.items():
             bridge.set_stamp(msg.header.stamp, ns)
-            msg.fluid_pressure = float(meas[topic] + p_atm)
-            msg.variance = self.profile.spec(topic).noise_std ** 2
-            pub.publish(msg)
-        js = JointState()
+            msg.fluid_pressure = float(self._measure(topic, gauge[topic]) + p_atm)
+            self._pub_p[topic].publish(msg)
+        js = self._m_js
         bridge.set_stamp(js.header.stamp, ns)
-        js.name = ['spool', 'swash_plate_actuator']
-        js.position = [float(meas['spool_position']), float(meas['actuator_position'])]
+        js.position = [float(self._measure('spool_position', y[Y['x_c']])),
+                       float(self._measure('actuator_position', y[Y['x_a']]))]
         js.velocity = [float(y[Y['v_c']]), float(y[Y['v_a']])]
         js.effort = [float(self.params.spool.phi_s * (y[Y['I_s']] - self.params.I_nominal)),
                      float(y[Y['P_a']] * self.params.actuator.S_a)]
         self._pub_js.publish(js)
-        self._flags = {
-            'spool_at_stop': abs(y[Y['x_c']]) >= self.params.spool.x_c_max,
-            'plate_at_stop': abs(y[Y['x_a']]) >= self.params.x_a_stop,
-            'relief_open': y[Y['Q_relief']] > 0.0,
-            'pressure_floor_active': min(y[Y['P_a']], y[Y['P_l']]) + p_atm
-            < self.params.fluid.dp_floor,
-        }
+        self._y = y
 
     def _publish_current(self) -> None:
         """Applied current held from this step on (dither and sensor model included)."""
         if self.sim.steps % self._publish_every:
             return
-        i_s = float(self.sim.outputs()[Y['I_s']])
-        self._pub_i.publish(Float64(data=float(
-            self.sensors.channels['solenoid_current'].update(i_s))))
+        f = self._m_float
+        f.data = float(self._measure('solenoid_current',
+                                     self.params.I_nominal + float(self.sim.u[0])
+                                     if not self.params.input.dither_amp
+                                     else float(self.sim.outputs()[Y['I_s']])))
+        self._pub_i.publish(f)
+
+    def _limit_flags(self) -> dict:
+        y, p = self._y, self.params
+        return {
+            'spool_at_stop': bool(abs(y[Y['x_c']]) >= p.spool.x_c_max),
+            'plate_at_stop': bool(abs(y[Y['x_a']]) >= p.x_a_stop),
+            'relief_open': bool(y[Y['Q_relief']] > 0.0),
+            'pressure_floor_active': bool(min(y[Y['P_a']], y[Y['P_l']]) + p.fluid.p_atm
+                                          < p.fluid.dp_floor),
+        }
 
     # ---- diagnostics (executor thread) ---------------------------------------------------
 
     def _publish_diagnostics(self) -> None:
         with self._lock:
             stats = dict(self._stats)
-            flags = dict(self._flags)
+            flags = self._limit_flags()
             periods = np.array(self._periods[-2000:])
             age = (time.monotonic() - self._last_cmd_wall) if self._last_cmd_wall else math.nan
             failed, watchdog, paused = self._failed, self._watchdog, self._paused
