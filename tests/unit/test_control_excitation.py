@@ -112,3 +112,15 @@ def test_open_loop_mode_plays_the_excitation_inside_the_limits(cfg, make):
     assert reached
     assert not c.state()['fault']
     assert math.isnan(c.state()['reference'])
+
+
+def test_up_staircase_only_grows(cfg, params):
+    """direction: up climbs from levels_min to levels_max (growing flow, the paper's
+    identification data), one level per dwell, and holds the top when not repeating."""
+    s = _signal(cfg, signal='staircase', direction='up', unit='percent', levels_min=30.0,
+                levels_max=60.0, n_levels=4, dwell=1.0, repeat=False)
+    lo, hi = params.current_range
+    levels = [s(t) for t in (0.5, 1.5, 2.5, 3.5, 9.0)]
+    expect = [lo + (hi - lo) * d for d in (0.3, 0.4, 0.5, 0.6, 0.6)]
+    assert levels == pytest.approx(expect)
+    assert s.duration == pytest.approx(4.0)

@@ -44,8 +44,8 @@ class ExcitationSignal:
         kind = cfg.signal
         if kind == 'staircase':
             levels = np.linspace(cfg.levels_min, cfg.levels_max, cfg.n_levels)
-            seq = []
-            for lev in levels:
+            seq = [] if cfg.direction == 'both' else list(levels)
+            for lev in levels if cfg.direction == 'both' else []:
                 # Up first or down first, drawn from the seed: friction hysteresis shows in
                 # both directions without a fixed pattern.
                 sign = 1.0 if rng.random() < 0.5 else -1.0

@@ -228,6 +228,9 @@ class Excitation:
                              default=80.0, live=True)
     n_levels: int = spec('-', 'number of staircase operating points', 1, 100, default=4,
                          live=True)
+    direction: str = spec('-', 'staircase steps: both (up and down around each level) or up '
+                          '(levels_min to levels_max, growing flow only, as the paper '
+                          'identifies)', choices=('both', 'up'), default='both', live=True)
     dwell: float = spec('s', 'duration of one stair', 0.01, 100.0, default=1.0, live=True)
     bit_time: float = spec('s', 'PRBS bit duration', 1.0e-3, 10.0, default=0.05, live=True)
     prbs_order: int = spec('-', 'PRBS shift-register length n (period 2^n - 1 bits)', 3, 20,
