@@ -15,7 +15,6 @@ from pathlib import Path
 from typing import Union
 
 import numpy as np
-from scipy.integrate import solve_ivp
 
 from . import _core as c
 from .model import INPUTS, OUTPUT_UNITS, OUTPUTS, pack, state_names
@@ -218,6 +217,7 @@ def simulate(params: Params, duration: float, current: Signal = None, *, model: 
 
 def _run_radau(x0, dt, U, p, rtol, decim, Y, X, stats):
     """Reference integration with scipy's Radau over each held-input segment."""
+    from scipy.integrate import solve_ivp  # only the reference needs it (0.3 s to import)
     n = x0.size
     scale = c.state_scale(p, n)
     dx = np.empty(n)

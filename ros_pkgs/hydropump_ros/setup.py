@@ -22,6 +22,7 @@ setup(
             'controller = hydropump_ros.controller_node:main',
             'recorder = hydropump_ros.recorder_node:main',
             'hydropump-graph = hydropump_ros.graph:main',
+            'hydropump-demo = hydropump_ros.campaign:main',
         ],
     },
 )

@@ -25,12 +25,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 import math
+from typing import TYPE_CHECKING
 import warnings
 
-import control
 import numpy as np
 
 from .schema import ControllerConfig
+
+if TYPE_CHECKING:
+    import control
 
 
 def pole(tau: float, T: float) -> float:
@@ -164,6 +167,7 @@ def emc_flow_lti(cfg: ControllerConfig, branch: str = 'up') -> control.StateSpac
 
 def _probe(f, n: int, T: float) -> control.StateSpace:
     """State-space matrices of a linear step function ``f(x, y) -> (x_next, u)``."""
+    import control  # python-control costs a second to import: analysis only
     A, B = np.zeros((n, n)), np.zeros((n, 1))
     C, D = np.zeros((1, n)), np.zeros((1, 1))
     for i in range(n):
@@ -176,6 +180,7 @@ def _probe(f, n: int, T: float) -> control.StateSpace:
 
 def pi_lti(p: float, i: float, T: float) -> control.TransferFunction:
     """The PI as implemented (control_toolbox order): ``u = p e + I``, then ``I += T i e``."""
+    import control  # python-control costs a second to import: analysis only
     return control.tf([p, T * i - p], [1.0, -1.0], T)
 
 
@@ -188,6 +193,7 @@ def flow_plant_lti(cfg: ControllerConfig, branch: str = 'up', gain: float = 1.0,
     model does. The zero acts through the spool, which follows the held command at once: a
     sample taken at ``t_k`` sees the command of the period before.
     """
+    import control  # python-control costs a second to import: analysis only
     m, T = cfg.model, cfg.period
     tau = (m.tau if branch == 'up' else m.tau_down) * tau_scale
     c = 0.0 if branch == 'up' else m.tau_z / tau
@@ -225,6 +231,7 @@ def frequency_response(sys, w: np.ndarray) -> np.ndarray:
     ``C (zI - A)^-1 B + D`` solved for blocks of frequencies at once (python-control solves one
     frequency at a time, 50x slower for the loops here).
     """
+    import control  # python-control costs a second to import: analysis only
     ss = control.ss(sys)
     A, B = np.asarray(ss.A, dtype=complex), np.asarray(ss.B, dtype=complex)[:, :1]
     C, D = np.asarray(ss.C, dtype=complex)[:1], complex(np.asarray(ss.D)[0, 0])
@@ -247,6 +254,7 @@ def loop_margins(L, n: int = 4000) -> Margins:
     a spurious crossing near Nyquist when the loop has direct feedthrough); the delay margin is
     the smallest ``PM / w_c`` over the gain crossovers.
     """
+    import control  # python-control costs a second to import: analysis only
     T = L.dt
     w = np.logspace(-2, math.log10(math.pi / T * (1.0 - 1e-6)), n)
     with warnings.catch_warnings():
@@ -334,6 +342,7 @@ def margin_plant_lti(cfg: ControllerConfig, alpha_l: float, gain: float = 1.0,
                      tau_scale: float = 1.0) -> control.StateSpace:
     """Pump and line from the relative command to the relative margin (eqs. 14 and 9), sampled;
     the margin is measured without delay."""
+    import control  # python-control costs a second to import: analysis only
     T, gamma = cfg.period, cfg.model.gamma_u
     a = math.exp(-T / (cfg.model.tau * tau_scale))
     A = np.array([[a, 0.0], [(1.0 - alpha_l) * gamma, alpha_l]])
@@ -348,6 +357,7 @@ def emc_margin_margins(cfg: ControllerConfig, alpha_l: float, **plant) -> Margin
 
 def closed_loop_eigenvalues(cfg: ControllerConfig, branch: str = 'up') -> np.ndarray:
     """Eigenvalues (z-plane) of the nominal flow loop: EMC on the linear model with delay."""
+    import control  # python-control costs a second to import: analysis only
     with warnings.catch_warnings():
         warnings.simplefilter('ignore')
         L = -emc_flow_lti(cfg, branch) * flow_plant_lti(cfg, branch)

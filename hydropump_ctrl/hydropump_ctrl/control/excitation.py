@@ -12,7 +12,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.signal import max_len_seq
 
 from .embedded import PumpModel
 from .schema import Excitation
@@ -58,6 +57,7 @@ class ExcitationSignal:
             state = rng.integers(0, 2, n)
             if not state.any():
                 state[0] = 1
+            from scipy.signal import max_len_seq  # scipy.signal takes 0.6 s to import
             bits = max_len_seq(n, state=state)[0].astype(float)
             self._bits = self._level(cfg.offset) + (2.0 * bits - 1.0) * self._amp(
                 cfg.amplitude)

@@ -87,6 +87,8 @@ NODE_SPECS = [
               (0.1, 60.0), None, False, False),
     ParamSpec('start_paused', bool, '-', 'wait for ~/pause false before publishing t = 0, so '
               'that every peer is matched first', (None, None), None, False, False),
+    ParamSpec('pause_at', float, 's', 'pause by itself once simulation time reaches this; 0 = '
+              'never (experiments end at an exact instant)', (0.0, 1.0e6), None, True, False),
 ]
 
 LIVE_INPUTS = {'line.P_u': 'load_pressure', 'line.xi_u': 'aperture', 'pump.f_p': 'shaft_speed'}
@@ -171,7 +173,7 @@ class SimulatorNode(Node):
                          'lock_step': False, 'control_period': 0.005, 'lock_step_timeout': 1.0,
                          'command_timeout': 0.5, 'safe_current': lo,
                          'initial_current': self.params.I_nominal, 'diagnostics_period': 1.0,
-                         'start_paused': False}
+                         'start_paused': False, 'pause_at': 0.0}
         more, errs = bridge.declare(self, NODE_SPECS[3:], node_defaults)
         cfg.update(more)
         errors += errs
@@ -309,6 +311,10 @@ class SimulatorNode(Node):
         self._publish(self.sim.outputs())
         while not self._stop and rclpy.ok():
             with self._lock:
+                pause_at = self._cfg['pause_at']
+                if pause_at > 0.0 and self.sim.t >= pause_at - 0.5 * self.sim.dt \
+                        and not self._paused_at_done(pause_at):
+                    self._paused = True
                 while (self._paused or self._failed) and not self._stop:
                     self._lock.wait(0.1)
                     next_wall = time.monotonic()
@@ -339,6 +345,12 @@ class SimulatorNode(Node):
                 continue
             if self.sim.steps % self._publish_every == 0:
                 self._publish(self.sim.outputs())
+
+    def _paused_at_done(self, pause_at: float) -> bool:
+        """Pause once per ``pause_at`` value: resuming at that instant must not pause again."""
+        done = getattr(self, '_pause_done', None) == pause_at
+        self._pause_done = pause_at
+        return done
 
     def _wait_for_command(self) -> None:
         """Lock-step: wait (steady clock) for a command newer than the last one used."""
