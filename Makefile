@@ -1,4 +1,5 @@
-# hydropump: `make demo` runs the main job, `make test` runs lint and the tests.
+# hydropump: `make demo` runs the main job (the paper end to end through the ROS 2 nodes),
+# `make test` runs lint and the tests.
 # Both bootstrap .venv on first use (Python 3.11, everything pinned in requirements.txt).
 
 PYTHON ?= python3
@@ -26,7 +27,7 @@ $(STAMP): $(SETUP_FILES)
 	touch $@
 
 demo: $(STAMP)
-	$(BIN)/hydropump analyze
+	$(BIN)/hydropump-demo
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

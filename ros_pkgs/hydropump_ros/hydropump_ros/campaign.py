@@ -400,35 +400,42 @@ def plot_bode_identified(params, ident, path: Path) -> None:
     plt.close(fig)
 
 
-def plot_hysteresis(params, path: Path) -> dict:
-    """The current-flow loop of a slow triangular sweep with Coulomb friction (0.5 N spool,
-    20 N plate), against the frictionless model."""
+def plot_hysteresis(params, path: Path, levels: int = 13, hold: float = 1.5) -> dict:
+    """The quasi-static current-flow loop: a staircase 20 -> 80 -> 20 % held ``hold`` s per
+    level, with Coulomb friction (0.5 N spool, 20 N plate) and without. Each point is the mean
+    flow over the last third of its hold, shown as the deviation from the static map of
+    eq. 11, where the loop is visible. Returns the gap at mid range (up minus down, % FS)."""
     from hydropump_sim import simulate
-    from hydropump_sim.scaling import current_for_displacement, flow_percent
+    from hydropump_sim.scaling import (
+        current_for_displacement,
+        displacement_of_current,
+        flow_percent,
+    )
     plt = _plt()
-    lo, hi = current_for_displacement(params, [0.2, 0.8])
-    period = 20.0
+    d = np.linspace(0.2, 0.8, levels)
+    seq = np.concatenate([d, d[-2::-1]])
+    currents = current_for_displacement(params, seq)
 
-    def tri(t):
-        ph = np.mod(np.asarray(t), period) / period
-        return lo + (hi - lo) * np.where(ph < 0.5, 2 * ph, 2 - 2 * ph)
+    def stairs(t):
+        return currents[np.minimum((np.asarray(t) // hold).astype(int), seq.size - 1)]
 
     out = {}
-    fig, ax = plt.subplots(figsize=(6.5, 5))
-    for label, p in (('no friction', params),
-                     ('Coulomb 0.5 N spool, 20 N plate',
-                      params.replace({'spool.F_coul_c': 0.5, 'plate.F_coul_a': 20.0}))):
-        r = simulate(p, period, tri, dt_out=2e-3)
-        q = flow_percent(params, r.q_l)
-        ax.plot(r.I_s, q, label=label)
-        mid = np.abs(r.I_s - 0.5 * (lo + hi)) < 2e-3
-        up = mid & (r.t < period / 2)
-        down = mid & (r.t > period / 2)
-        out[label] = float(np.mean(q[up]) - np.mean(q[down])) if up.any() and down.any() \
-            else math.nan
+    fig, ax = plt.subplots(figsize=(7, 5))
+    for label, p, style in (('no friction', params, 'o-'),
+                            ('Coulomb 0.5 N spool, 20 N plate', params.replace(
+                                {'spool.F_coul_c': 0.5, 'plate.F_coul_a': 20.0}), 's-')):
+        r = simulate(p, hold * seq.size, stairs, dt_out=5e-3)
+        k = np.arange(seq.size)
+        sel = [(r.t >= (i + 2 / 3) * hold) & (r.t < (i + 1) * hold) for i in k]
+        q = np.array([np.mean(flow_percent(params, r.q_l[m])) for m in sel])
+        dev = q - 100.0 * displacement_of_current(params, currents)
+        ax.plot(currents, dev, style, label=label, ms=4)
+        mid = levels // 2
+        out[label] = float(dev[mid] - dev[seq.size - 1 - mid])
+    ax.axhline(0.0, color='grey', lw=0.8)
     ax.set_xlabel('solenoid current I_s [A]')
-    ax.set_ylabel('line flow q_l [% of V_p f_p]')
-    ax.set_title('Current-flow hysteresis (20 s triangular sweep)')
+    ax.set_ylabel('settled q_l minus eq. 11 [% of V_p f_p]')
+    ax.set_title(f'Current-flow hysteresis (staircase 20 -> 80 -> 20 %, {hold:g} s per level)')
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
@@ -665,7 +672,7 @@ def report_sections(ident, truth, rows, loops, modal, analysis_text, hyst, walls
         ('Bode: fine vs simplified vs identified', _img(figs / 'bode.png')),
         ('Step responses up and down', _img(figs / 'steps.png')),
         ('Current-flow hysteresis with friction', _table(
-            ['model', 'q_l up minus down at mid current [% FS]'],
+            ['model', 'settled q_l, from below minus from above, at 50 % [% FS]'],
             [[k, f'{v:.3f}'] for k, v in hyst.items()]) + _img(figs / 'hysteresis.png')),
         ('EMC against PI (closed loop through the nodes)', _table(head, lrows)
          + _img(figs / 'emc_vs_pi.png')),
