@@ -8,17 +8,21 @@ import math
 import numpy as np
 
 
-def crossing_time(t: np.ndarray, y: np.ndarray, level: float, t_from: float = 0.0) -> float:
-    """First time at or after ``t_from`` where ``y`` crosses ``level`` (linear interpolation).
+def crossing_time(t: np.ndarray, y: np.ndarray, level: float, t_from: float = 0.0,
+                  rising: bool | None = None) -> float:
+    """First time at or after ``t_from`` where ``y`` reaches ``level`` (linear interpolation).
 
-    Returns ``nan`` when ``y`` never reaches the level.
+    ``rising`` says from which side (default: from the side ``y`` starts on; give it for noisy
+    signals, whose first sample may already lie beyond a level close to the start). Returns
+    ``nan`` when ``y`` never reaches the level.
     """
     t = np.asarray(t, dtype=float)
     y = np.asarray(y, dtype=float)
     k0 = int(np.searchsorted(t, t_from))
     if k0 >= t.size:
         return math.nan
-    rising = level >= y[k0]
+    if rising is None:
+        rising = level >= y[k0]
     hit = (y[k0:] >= level) if rising else (y[k0:] <= level)
     idx = np.flatnonzero(hit)
     if idx.size == 0:
@@ -67,9 +71,10 @@ def step_figures(t, y, t_step: float = 0.0, *, final: float | None = None,
         raise ValueError('step of zero size: no step figures')
     after = y[k0:]
     ta = t[k0:]
-    t10 = crossing_time(t, y, y0 + 0.1 * step, t_step)
-    t90 = crossing_time(t, y, y0 + 0.9 * step, t_step)
-    t63 = crossing_time(t, y, y0 + 0.632 * step, t_step) - t_step
+    up = step > 0
+    t10 = crossing_time(t, y, y0 + 0.1 * step, t_step, up)
+    t90 = crossing_time(t, y, y0 + 0.9 * step, t_step, up)
+    t63 = crossing_time(t, y, y0 + 0.632 * step, t_step, up) - t_step
     norm = (after - y0) / step
     overshoot = max(0.0, float(np.max(norm)) - 1.0) * 100.0
     undershoot = max(0.0, -float(np.min(norm))) * 100.0

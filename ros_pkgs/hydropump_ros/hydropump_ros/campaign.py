@@ -343,15 +343,15 @@ def loop_figures(params, exp: Experiment, bag: Path, t_step: float = 0.5) -> dic
         return {'rise_s': f.rise, 'overshoot_pct': f.overshoot, 'settling_s': f.settling,
                 'iae': f.iae * scale, 'iae_unit': f'{unit} s', 'y': (t, y * scale),
                 'unit': unit}
-    # Disturbance: the dip and the recovery to within 1 bar of the set-point.
+    # Disturbance: the peak deviation and the recovery to within 1 bar of the set-point.
     err = y - y0
     after = t >= t_step
-    dip = float(np.max(np.abs(err[after])))
+    peak = float(np.max(np.abs(err[after])))
     outside = np.flatnonzero(np.abs(err[after]) > 1e5)
     rec = float(t[after][outside[-1] + 1] - t_step) if outside.size and outside[-1] + 1 < \
         after.sum() else (0.0 if not outside.size else math.inf)
     iae = float(np.trapezoid(np.abs(err[after]), t[after]))
-    return {'dip_bar': dip * 1e-5, 'recovery_s': rec, 'iae': iae * 1e-5,
+    return {'peak_bar': peak * 1e-5, 'recovery_s': rec, 'iae': iae * 1e-5,
             'iae_unit': 'bar s', 'y': (t, y * 1e-5), 'unit': 'bar'}
 
 
@@ -637,12 +637,12 @@ def identification_rows(ident, truth) -> list[list[str]]:
 
 
 def loop_table(results: dict):
-    head = ['run', 'rise [s]', 'overshoot [%]', 'settling [s]', 'dip [bar]',
+    head = ['run', 'rise [s]', 'overshoot [%]', 'settling [s]', 'peak dev. [bar]',
             'recovery [s]', 'IAE']
     rows = []
     for name, f in results.items():
         rows.append([name, _fmt(f.get('rise_s')), _fmt(f.get('overshoot_pct')),
-                     _fmt(f.get('settling_s')), _fmt(f.get('dip_bar')),
+                     _fmt(f.get('settling_s')), _fmt(f.get('peak_bar')),
                      _fmt(f.get('recovery_s')), f'{f["iae"]:.4g} {f["iae_unit"]}'])
     return head, rows
 
