@@ -497,6 +497,9 @@ class SimulatorNode(Node):
 def main(args=None) -> int:
     if not bridge.init_or_exit(args):
         return 2
+    # Two threads share the GIL: hand it over sooner, so a command taken by the executor
+    # reaches the stepping thread without waiting out the 5 ms default interval.
+    sys.setswitchinterval(2.0e-4)
     try:
         node = SimulatorNode()
     except StartupError as exc:
