@@ -10,22 +10,12 @@ import pytest
 from hydropump_ctrl.closed_loop import Event, run_closed_loop
 from hydropump_ctrl.control.emc import EMCController
 from hydropump_ctrl.control.pi import PIController
-from hydropump_ctrl.control.schema import load_config
 from hydropump_sim.params import ParamError
-from hydropump_sim.sensors import load_profile
 
 ROOT = Path(__file__).resolve().parents[2]
 CONTROLLERS = [EMCController, PIController]
 
 
-@pytest.fixture(scope='module')
-def cfg(params):
-    return load_config(ROOT / 'config' / 'controller.yaml', current_limits=params.I_limits)
-
-
-@pytest.fixture(scope='module')
-def bench():
-    return load_profile(ROOT / 'config' / 'bench.yaml')
 
 
 def _meas(q, dp=2.5e6, p_u=1.2e7):

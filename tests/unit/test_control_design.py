@@ -10,14 +10,9 @@ import pytest
 
 from hydropump_ctrl.control import design as dz
 from hydropump_ctrl.control.emc import EMCController
-from hydropump_ctrl.control.schema import load_config
 
 ROOT = Path(__file__).resolve().parents[2]
 
-
-@pytest.fixture(scope='module')
-def cfg(params):
-    return load_config(ROOT / 'config' / 'controller.yaml', current_limits=params.I_limits)
 
 
 def _chosen(cfg):

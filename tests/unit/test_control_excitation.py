@@ -12,14 +12,9 @@ from hydropump_ctrl.control.embedded import PumpModel
 from hydropump_ctrl.control.emc import EMCController
 from hydropump_ctrl.control.excitation import ExcitationSignal
 from hydropump_ctrl.control.pi import PIController
-from hydropump_ctrl.control.schema import load_config
 
 ROOT = Path(__file__).resolve().parents[2]
 
-
-@pytest.fixture(scope='module')
-def cfg(params):
-    return load_config(ROOT / 'config' / 'controller.yaml', current_limits=params.I_limits)
 
 
 def _signal(cfg, **kw):

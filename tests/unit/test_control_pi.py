@@ -7,20 +7,10 @@ import pytest
 
 from hydropump_ctrl.control.cases import unreachable_case
 from hydropump_ctrl.control.pi import PIController, Pid
-from hydropump_ctrl.control.schema import load_config
-from hydropump_sim.sensors import load_profile
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-@pytest.fixture(scope='module')
-def cfg(params):
-    return load_config(ROOT / 'config' / 'controller.yaml', current_limits=params.I_limits)
-
-
-@pytest.fixture(scope='module')
-def bench():
-    return load_profile(ROOT / 'config' / 'bench.yaml')
 
 
 def _gains(**kw):

@@ -13,10 +13,6 @@ ROOT = Path(__file__).resolve().parents[2]
 CONTROLLER_YAML = ROOT / 'config' / 'controller.yaml'
 
 
-@pytest.fixture(scope='module')
-def cfg(params):
-    return schema.load_config(CONTROLLER_YAML, current_limits=params.I_limits)
-
 
 def test_committed_params_file_is_a_valid_ros_params_file(cfg, params):
     doc = yaml.safe_load(CONTROLLER_YAML.read_text())

@@ -11,20 +11,10 @@ from hydropump_ctrl.closed_loop import PlantVariation, run_closed_loop
 from hydropump_ctrl.control import cases as cs
 from hydropump_ctrl.control.emc import EMCController
 from hydropump_ctrl.control.pi import PIController
-from hydropump_ctrl.control.schema import load_config
-from hydropump_sim.sensors import load_profile
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-@pytest.fixture(scope='module')
-def cfg(params):
-    return load_config(ROOT / 'config' / 'controller.yaml', current_limits=params.I_limits)
-
-
-@pytest.fixture(scope='module')
-def bench():
-    return load_profile(ROOT / 'config' / 'bench.yaml')
 
 
 @pytest.fixture(scope='module')

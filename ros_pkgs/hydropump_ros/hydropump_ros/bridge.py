@@ -125,6 +125,28 @@ def file_defaults(path: str) -> dict:
     return flat
 
 
+class StartupError(Exception):
+    """Bad configuration at start-up: ``lines`` are printed and the node exits with 2."""
+
+    def __init__(self, lines):
+        self.lines = list(lines)
+        super().__init__('\n'.join(self.lines))
+
+
+def build_or_exit(factory):
+    """Construct a node; on :class:`StartupError` print its lines and return ``None``."""
+    import sys
+
+    import rclpy
+    try:
+        return factory()
+    except StartupError as exc:
+        for line in exc.lines:
+            print(f'error: {line}', file=sys.stderr)
+        rclpy.try_shutdown()
+        return None
+
+
 def init_or_exit(args=None) -> bool:
     """``rclpy.init`` that turns a bad command line (e.g. a missing ``--params-file``) into
     one ``error:`` line instead of a traceback; returns False when the node must exit."""

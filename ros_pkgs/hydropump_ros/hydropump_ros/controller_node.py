@@ -77,7 +77,7 @@ class ControllerNode(LifecycleNode):
         try:
             defaults = bridge.file_defaults(path)
         except ParamError as exc:
-            raise StartupError(exc.lines) from None
+            raise bridge.StartupError(exc.lines) from None
         self._specs = {s.name: s for s in iter_specs()}
         values, errs = bridge.declare(self, list(iter_specs()), defaults)
         errors += errs
@@ -87,11 +87,11 @@ class ControllerNode(LifecycleNode):
         errors += bridge.unknown_overrides(self, list(self._specs) + [s.name for s in
                                                                        NODE_SPECS])
         if errors:
-            raise StartupError(errors)
+            raise bridge.StartupError(errors)
         try:
             self.config = config_from_dict(values, source=path)
         except ParamError as exc:
-            raise StartupError(exc.lines) from None
+            raise bridge.StartupError(exc.lines) from None
         self.watchdog = {k: node_vals[k] for k in ('watchdog.hold_timeout',
                                                     'watchdog.safe_timeout')}
         self.sim_time = self.get_parameter('use_sim_time').value
@@ -373,21 +373,12 @@ class ControllerNode(LifecycleNode):
         self._pub_diag.publish(DiagnosticArray(status=[st]))
 
 
-class StartupError(Exception):
-    def __init__(self, lines):
-        self.lines = list(lines)
-        super().__init__('\n'.join(self.lines))
-
 
 def main(args=None) -> int:
     if not bridge.init_or_exit(args):
         return 2
-    try:
-        node = ControllerNode()
-    except StartupError as exc:
-        for line in exc.lines:
-            print(f'error: {line}', file=sys.stderr)
-        rclpy.try_shutdown()
+    node = bridge.build_or_exit(ControllerNode)
+    if node is None:
         return 2
     if node.autostart:
         node.trigger_configure()

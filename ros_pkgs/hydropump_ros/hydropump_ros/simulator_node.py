@@ -96,13 +96,6 @@ FLOW_TOPICS = {'pump_flow': 'Q_p', 'line_flow': 'q_l', 'load_flow': 'Q_load'}
 PRESSURE_TOPICS = {'actuator_pressure': 'P_a', 'line_pressure': 'P_l', 'load_pressure': 'P_u'}
 
 
-class StartupError(Exception):
-    """Bad configuration at start-up: ``lines`` are printed and the node exits non-zero."""
-
-    def __init__(self, lines):
-        self.lines = list(lines)
-        super().__init__('\n'.join(self.lines))
-
 
 class SimulatorNode(Node):
 
@@ -156,18 +149,18 @@ class SimulatorNode(Node):
                 seed = prof.seed
                 plant_defaults.update(prof.plant_overrides or {})
         except ParamError as exc:
-            raise StartupError(exc.lines) from None
+            raise bridge.StartupError(exc.lines) from None
         plant, errs = bridge.declare(self, list(plant_specs()), plant_defaults)
         errors += errs
         known = ([s.name for s in plant_specs()] + [s.name for s in NODE_SPECS]
                  + [s.name for s in sensor_specs()] + ['sensors.seed'])
         errors += bridge.unknown_overrides(self, known)
         if errors:
-            raise StartupError(errors)
+            raise bridge.StartupError(errors)
         try:
             self.params = params_from_dict(plant, source=plant_file)
         except ParamError as exc:
-            raise StartupError(exc.lines) from None
+            raise bridge.StartupError(exc.lines) from None
         lo, hi = self.params.current_range
         node_defaults = {'dt': 1e-3, 'publish_rate': 1000.0, 'real_time_factor': 1.0,
                          'lock_step': False, 'control_period': 0.005, 'lock_step_timeout': 1.0,
@@ -184,7 +177,7 @@ class SimulatorNode(Node):
         seed_vals, errs = bridge.declare(self, [seed_spec], {'sensors.seed': seed})
         errors += errs
         if errors:
-            raise StartupError(errors)
+            raise bridge.StartupError(errors)
         nested = {'sensors': {}}
         for name, v in sensors.items():
             _, sig, field = name.split('.')
@@ -198,7 +191,7 @@ class SimulatorNode(Node):
             try:
                 self.scenario = load_scenario(cfg['scenario_file']).inputs
             except ScenarioError as exc:
-                raise StartupError(exc.lines) from None
+                raise bridge.StartupError(exc.lines) from None
         self._specs = {s.name: s for s in list(plant_specs()) + NODE_SPECS}
         dt = cfg['dt']
         self._publish_every = max(1, int(round(1.0 / (cfg['publish_rate'] * dt))))
@@ -500,12 +493,8 @@ def main(args=None) -> int:
     # Two threads share the GIL: hand it over sooner, so a command taken by the executor
     # reaches the stepping thread without waiting out the 5 ms default interval.
     sys.setswitchinterval(2.0e-4)
-    try:
-        node = SimulatorNode()
-    except StartupError as exc:
-        for line in exc.lines:
-            print(f'error: {line}', file=sys.stderr)
-        rclpy.try_shutdown()
+    node = bridge.build_or_exit(SimulatorNode)
+    if node is None:
         return 2
     try:
         rclpy.spin(node)
