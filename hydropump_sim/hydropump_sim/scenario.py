@@ -78,10 +78,6 @@ class Signal:
                              0.0)
         return v if v.ndim else float(v)
 
-    def change_times(self) -> list[float]:
-        """Times at which a held signal changes (for schedulers)."""
-        return [pt[0] for pt in self.points] if self.kind == 'steps' else []
-
 
 @dataclass
 class Scenario:
