@@ -18,15 +18,13 @@ from typing import Any
 
 import yaml
 
+from .errors import HydropumpError
 
-class ParamError(ValueError):
+
+class ParamError(HydropumpError, ValueError):
     """Invalid parameters: ``lines`` holds one human-readable line per problem."""
 
-    def __init__(self, lines: list[str], source: str | None = None):
-        self.lines = list(lines)
-        self.source = source
-        head = f'invalid parameters in {source}' if source else 'invalid parameters'
-        super().__init__(head + ':\n' + '\n'.join('  ' + ln for ln in self.lines))
+    head = 'invalid parameters'
 
 
 def spec(unit: str, desc: str, lo: float | None = None, hi: float | None = None, *,

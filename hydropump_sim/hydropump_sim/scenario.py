@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from .errors import HydropumpError
 from .params import default_params_path, load_params, ParamError, Params, read_yaml
 
 SIGNALS = {
@@ -42,13 +43,10 @@ _SIGNAL_KEYS = {'steps', 'ramp', 'offset', 'sine'}
 _SINE_KEYS = {'amplitude', 'frequency', 'phase', 'start'}
 
 
-class ScenarioError(ValueError):
+class ScenarioError(HydropumpError, ValueError):
     """Invalid scenario: ``lines`` holds one line per problem."""
 
-    def __init__(self, lines: list[str], source: str | None = None):
-        self.lines = list(lines)
-        head = f'invalid scenario {source}' if source else 'invalid scenario'
-        super().__init__(head + ':\n' + '\n'.join('  ' + ln for ln in self.lines))
+    head = 'invalid scenario'
 
 
 @dataclass(frozen=True)

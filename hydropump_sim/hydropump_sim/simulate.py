@@ -17,6 +17,7 @@ from typing import Union
 import numpy as np
 
 from . import _core as c
+from .errors import HydropumpError
 from .model import INPUTS, OUTPUT_UNITS, OUTPUTS, pack, state_names
 from .params import Params
 from .trim import equilibrium, operating_inputs
@@ -24,7 +25,7 @@ from .trim import equilibrium, operating_inputs
 Signal = Union[float, Callable[[float], float], None]
 
 
-class IntegrationError(RuntimeError):
+class IntegrationError(HydropumpError, RuntimeError):
     """The integrator could not advance (step size underflow or non-finite state)."""
 
 

@@ -8,11 +8,12 @@ import numpy as np
 from scipy import optimize
 
 from . import _core as c
+from .errors import HydropumpError
 from .model import nominal_inputs, OUTPUTS, pack
 from .params import Params
 
 
-class TrimError(ValueError):
+class TrimError(HydropumpError, ValueError):
     """No equilibrium exists or none was found at the requested operating point."""
 
 
