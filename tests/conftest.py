@@ -7,7 +7,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PUMP_YAML = ROOT / 'config' / 'pump.yaml'
-REFERENCE_YAML = ROOT.parent / 'shared' / 'reference' / 'pump_reference.yaml'
+# The reference parameter set (test data; its figures are in docs/reference.md).
+REFERENCE_YAML = ROOT / 'tests' / 'data' / 'pump_reference.yaml'
 
 # Every test process keeps DDS discovery on loopback.
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'

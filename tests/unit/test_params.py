@@ -25,9 +25,7 @@ def _errors(data):
 
 
 def test_project_file_matches_reference_set():
-    """config/pump.yaml holds the reference set: same groups, keys and values."""
-    if not REFERENCE_YAML.exists():
-        pytest.skip('reference set not available')
+    """config/pump.yaml holds the reference set (tests/data): same groups, keys and values."""
     ref = yaml.safe_load(REFERENCE_YAML.read_text())
     ours = _reference_dict()
     for group, values in ref.items():
@@ -47,7 +45,7 @@ def test_every_parameter_has_unit_description_and_range():
 def test_derived_quantities_follow_the_paper(params):
     assert math.isclose(params.Q_max, 45e-6 * 25.0)
     assert math.isclose(params.b_p, params.Q_max / params.pump.x_a_max)
-    # Paper map (I1): 0..100 % displacement is I_s in [0.3, 0.7] A.
+    # Paper map (docs/reference.md I1): 0..100 % displacement is I_s in [0.3, 0.7] A.
     assert params.current_range == pytest.approx((0.3, 0.7))
     assert params.I_limits == pytest.approx((0.1, 0.9))
 
