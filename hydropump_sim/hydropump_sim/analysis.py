@@ -143,7 +143,7 @@ def format_report(params: Params, T: float = 0.05) -> tuple[str, dict]:
     add(f'  Q_p = {eq.Q_p:.6e} m^3/s ({flow_percent(params, eq.Q_p):.2f} % of V_p f_p)   '
         f'q_l = {eq.q_l:.6e} m^3/s   Q_load = {eq.Q_load:.6e} m^3/s')
     add('')
-    add('== Design checks (section IV; model_notes I6, I7) ==')
+    add('== Design checks (section IV; docs/reference.md I6, I7) ==')
     for d in design_checks(params):
         val = f'{d.value * 1e3:.4g} ms' if d.unit == 's' else (
             f'{d.value / 1e5:.4g} bar' if d.unit == 'Pa' else f'{d.value:.4g}')

@@ -1,6 +1,6 @@
 """Linearisation, the paper's linear models (eqs. 14-18) and modal analysis.
 
-Every equilibrium sits at ``x_c = 0``, where eq. 4 has a kink (model_notes I2), so all
+Every equilibrium sits at ``x_c = 0``, where eq. 4 has a kink (docs/reference.md I2), so all
 linearisations are one-sided: ``branch='pos'`` (growing flow, ``x_c > 0``, eq. 14) or
 ``branch='neg'`` (falling flow, ``x_c < 0``, eq. 15).
 """
@@ -95,7 +95,7 @@ def linearize(params: Params, eq: Equilibrium | None = None, branch: str = 'pos'
 
 
 def load_slope(params: Params, eq: Equilibrium) -> float:
-    """``G_u = dQ_load/dP_l`` at the operating point [m^3/(s Pa)] (model_notes I10)."""
+    """``G_u = dQ_load/dP_l`` at the operating point [m^3/(s Pa)] (docs/reference.md I10)."""
     ln = params.line
     dp = eq.P_l - eq.u[c.U_PU]
     return ln.mu_u * eq.u[c.U_XI] / ln.gamma_u * dp ** (1.0 / ln.gamma_u - 1.0)

@@ -45,7 +45,7 @@ def pack(params: Params, model: str = 'fine', branch: str | None = None) -> np.n
         Which equations to evaluate.
     branch : {None, 'pos', 'neg'}
         Force the pilot-valve law of eq. 4 to one side of ``x_c = 0`` (one-sided
-        linearisation, model_notes I2); ``None`` follows the sign of ``x_c``.
+        linearisation, docs/reference.md I2); ``None`` follows the sign of ``x_c``.
     """
     f, pu, sp, ac, pl, ln, rl, inp = (params.fluid, params.pump, params.spool, params.actuator,
                                       params.plate, params.line, params.relief, params.input)

@@ -120,7 +120,8 @@ def test_prediction_follows_the_fine_model(params, pump):
             pred.append(pump.line_flow(Q, v_before))
             Q = pump.step(Q, v, 0.005)[0]
         err = np.max(np.abs(np.array(pred) - res.q_l)) / abs(pump.steady_flow(b) - Q)
-        # Within the 3 % of model_notes (simplified vs fine), away from the 3 ms spool mode.
+        # Within the 3 % of docs/reference.md A3 (simplified vs fine), away from the 3 ms
+        # spool mode.
         late = res.t >= 0.05 + 0.01
         err_late = np.max(np.abs(np.array(pred)[late] - res.q_l[late])) / abs(
             pump.steady_flow(b) - pump.steady_flow(a))

@@ -1,4 +1,4 @@
-"""Control of the pump (issue 4): Embedded Model Control, the PI baseline, excitation signals,
+"""Control of the pump: Embedded Model Control, the PI baseline, excitation signals,
 the parameter schema and the design tools. Pure Python: nothing here imports ROS.
 
 Typical use (a ROS node does the same)::

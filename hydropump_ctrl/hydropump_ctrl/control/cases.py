@@ -1,4 +1,4 @@
-"""The judged closed-loop cases of issue 4, shared by the tests, ``hydropump closed-loop``, the
+"""The judged closed-loop cases, shared by the tests, ``hydropump closed-loop``, the
 benchmark and docs/control.md.
 
 Every case builds its own run on :func:`hydropump_ctrl.closed_loop.run_closed_loop` (fine model,
@@ -172,7 +172,7 @@ def dither_case(controller: Controller, params: Params, profile: SensorProfile, 
 
 # --- the target table -------------------------------------------------------------------------
 
-# The judged operating points of issue 4.
+# The judged operating points (docs/control.md, target table).
 FLOW_STEPS = ((0.3, 0.7), (0.7, 0.3))            # fractions of V_p f_p
 MARGINS = (2.0e6, 3.0e6)                          # Pa
 APERTURES = (0.1, 0.5, 0.8)

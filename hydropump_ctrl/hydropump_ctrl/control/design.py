@@ -373,9 +373,9 @@ def model_from_plant(params, G0: float = 100.0, tau: float = 0.1, t_d: float = 0
     ``G0`` [%/(i_s/I_max)], ``tau`` [s] and ``t_d`` [s] are the paper's identification (eq. 19,
     growing flow). The simplified model (``params``, nominal operating point) adds what eq. 19
     leaves out: the falling-flow time constant, in the ratio of eq. 15 to eq. 14 (with ``K_c``,
-    I8); the zero ``tau_z = S_a/b_p`` of eq. 17; the spool stroke limit, as the largest stroke
-    rate ``b_p mu_a x_c_max sqrt(P_a)/S_a`` (eqs. 4, 10) times ``tau``; the line capacitance
-    ``V_l/beta`` and the load exponent of eq. 9.
+    docs/reference.md I8); the zero ``tau_z = S_a/b_p`` of eq. 17; the spool stroke limit, as
+    the largest stroke rate ``b_p mu_a x_c_max sqrt(P_a)/S_a`` (eqs. 4, 10) times ``tau``; the
+    line capacitance ``V_l/beta`` and the load exponent of eq. 9.
     """
     from hydropump_sim.linear import eq14_time_constant, pilot_root, zero_time_constant
     from hydropump_sim.trim import equilibrium
