@@ -1,8 +1,9 @@
-"""The "Reference figures" of model_notes.md, reproduced from the paper's equations.
+"""The reference figures of docs/reference.md, reproduced from the paper's equations.
 
-Tolerances: the notes quote three or four significant figures, so a figure is checked to the
-last quoted digit (plus the 0.1 % effect of the regularised orifice root, I3) unless the notes
-give a wider acceptance band, which is then used as given.
+Labels (I3, A2, ...) are the items of docs/reference.md. Tolerances: the figures are quoted to
+three or four significant figures, so a figure is checked to the last quoted digit (plus the
+0.1 % effect of the regularised orifice root, I3) unless an acceptance check (A1-A5) gives a
+wider band, which is then used as given.
 """
 
 import math
@@ -46,7 +47,8 @@ def test_equilibrium_at_50_percent(params):
 @pytest.mark.parametrize('d', [0.05, 0.3, 0.5, 0.62, 0.95])
 @pytest.mark.parametrize('P_u, xi_u', [(1.2e7, 0.5), (5.0e6, 0.9), (2.0e7, 0.2)])
 def test_steady_flow_is_eq_11(params, d, P_u, xi_u):
-    """q_p = V_p f_p i_s / I_max (eq. 11) at the exact equilibrium, any load."""
+    """Acceptance check A1: q_p = V_p f_p i_s / I_max (eq. 11) at the exact equilibrium, any
+    load."""
     I_s = float(current_for_displacement(params, d))
     eq = equilibrium(params, I_s, load_pressure=P_u, aperture=xi_u)
     i_s = I_s - params.I_nominal
@@ -62,7 +64,7 @@ def _eigs(params, branch):
 
 
 def test_eigenvalues_growing_flow(params):
-    """model_notes acceptance test 5: -10.08, -281.5, -439 +- 855j, -750 +- 9653j 1/s."""
+    """Acceptance check A5: -10.08, -281.5, -439 +- 855j, -750 +- 9653j 1/s."""
     lam = _eigs(params, 'pos')
     expect = [-10.08, -281.5, -439 - 855j, -439 + 855j, -750 - 9653j, -750 + 9653j]
     for got, want in zip(lam, expect):
@@ -105,7 +107,7 @@ def test_eq14_is_the_simplified_model_linearised(params):
 
 
 @pytest.mark.parametrize('model, t63, tol', [
-    ('fine', 100.4e-3, 1.0e-3),          # acceptance test 2: 100.4 +- 1 ms
+    ('fine', 100.4e-3, 1.0e-3),          # acceptance check A2: 100.4 +- 1 ms
     ('simplified', 94.5e-3, 0.1e-3),
     ('simplified_Kc', 99.2e-3, 0.1e-3),
 ])
@@ -122,8 +124,8 @@ def test_up_step_final_value(up):
 
 
 def test_fine_versus_simplified(up):
-    """Acceptance test 3: < 3 % of the step (printed eq. 10), < 1 % after 10 ms keeping K_c;
-    the notes' figures 2.27 % and 1.37 % (0.98 % after 10 ms)."""
+    """Acceptance check A3: < 3 % of the step (printed eq. 10), < 1 % after 10 ms keeping K_c;
+    the reference figures 2.27 % and 1.37 % (0.98 % after 10 ms)."""
     fine, final = up['fine']
     step = final - fine.q_l[0]
     late = fine.t >= T_STEP + 0.01
@@ -135,7 +137,7 @@ def test_fine_versus_simplified(up):
 
 
 def test_down_step(params):
-    """Acceptance test 4: 63 % time in 20..35 ms (27.5 ms), instantaneous drop about 27 %
+    """Acceptance check A4: 63 % time in 20..35 ms (27.5 ms), instantaneous drop about 27 %
     of the step (the zero of eq. 17: tau_z / tau_down)."""
     r, final = _step(params, 0.6, 0.4, duration=0.6)
     assert step_figures(r.t, r.q_l, T_STEP, final=final).t63 == pytest.approx(27.5e-3,
@@ -156,7 +158,7 @@ def test_large_step_saturates_the_spool(params):
 
 
 def test_fopdt_fit_of_the_fine_step(up):
-    """The notes' eq. 19 fit of the fine model's own step: G0 100, tau 100.4 ms, t_d < 1 ms."""
+    """The eq. 19 fit of the fine model's own step: G0 100, tau 100.4 ms, t_d < 1 ms."""
     from scipy.optimize import least_squares
     r, final = up['fine']
     params_u = r.I_s
