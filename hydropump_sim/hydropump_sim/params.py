@@ -10,36 +10,25 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
 import dataclasses
-from dataclasses import dataclass, field, fields
-import difflib
+from dataclasses import dataclass
 import math
 from pathlib import Path
 from typing import Any
 
-import yaml
+from .schema import (
+    build,
+    fmt,
+    group,
+    ParamError,
+    ParamSpec,
+    read_params_file,
+    spec,
+    specs_of,
+    to_flat,
+)
 
-from .errors import HydropumpError
-
-
-class ParamError(HydropumpError, ValueError):
-    """Invalid parameters: ``lines`` holds one human-readable line per problem."""
-
-    head = 'invalid parameters'
-
-
-def spec(unit: str, desc: str, lo: float | None = None, hi: float | None = None, *,
-         choices: tuple[str, ...] | None = None, default: Any = dataclasses.MISSING,
-         live: bool = False):
-    """Field metadata: unit, description, accepted range or choices, optional default.
-
-    A field with a default is optional in a parameter file; the reference keys have none, so a
-    missing one is reported. ``live`` marks parameters that may change while a simulation runs
-    (operating-point inputs); all others are read-only in the ROS nodes.
-    """
-    meta = {'unit': unit, 'desc': desc, 'range': (lo, hi), 'choices': choices, 'live': live}
-    if default is dataclasses.MISSING:
-        return field(metadata=meta)
-    return field(default=default, metadata=meta)
+__all__ = ['Params', 'ParamError', 'default_params_path', 'iter_specs', 'load_params',
+           'params_from_dict']
 
 
 @dataclass(frozen=True)
@@ -147,21 +136,6 @@ class Input:
                         0.0, 0.1, default=0.0)
 
 
-GROUPS = {
-    'fluid': Fluid, 'pump': Pump, 'spool': Spool, 'actuator': Actuator, 'plate': Plate,
-    'line': Line, 'relief': Relief, 'input': Input,
-}
-
-# Hints for values typed in a common non-SI unit: (unit, factor to SI, name).
-_UNIT_HINTS = {
-    'Pa': (1.0e5, 'bar'),
-    'm': (1.0e-3, 'mm'),
-    'm^3/s': (1.0 / 60000.0, 'L/min'),
-    'Hz': (1.0 / 60.0, 'rpm'),
-    'm^3': (1.0e-6, 'cm^3'),
-    'm^3/rev': (1.0e-6, 'cm^3/rev'),
-}
-
 # Relative tolerance for the redundant pairs and design condition D1.
 REL_TOL = 1.0e-3
 
@@ -170,14 +144,14 @@ REL_TOL = 1.0e-3
 class Params:
     """The validated plant parameter set, SI units, gauge pressures (tank = 0 Pa)."""
 
-    fluid: Fluid
-    pump: Pump
-    spool: Spool
-    actuator: Actuator
-    plate: Plate
-    line: Line
-    relief: Relief
-    input: Input
+    fluid: Fluid = group()
+    pump: Pump = group()
+    spool: Spool = group()
+    actuator: Actuator = group()
+    plate: Plate = group()
+    line: Line = group()
+    relief: Relief = group()
+    input: Input = group()
 
     # Derived quantities, named as in the paper.
     @property
@@ -228,119 +202,21 @@ class Params:
 
     def to_dict(self) -> dict[str, dict[str, Any]]:
         """Nested ``{group: {name: value}}`` dictionary."""
-        return {g: dataclasses.asdict(getattr(self, g)) for g in GROUPS}
+        return {f.name: dataclasses.asdict(getattr(self, f.name))
+                for f in dataclasses.fields(self)}
 
     def flat(self) -> dict[str, Any]:
         """Flat ``{'group.name': value}`` dictionary (ROS parameter names)."""
-        return {f'{g}.{k}': v for g, d in self.to_dict().items() for k, v in d.items()}
+        return to_flat(self)
 
-
-@dataclass(frozen=True)
-class ParamSpec:
-    """One schema entry, as the ROS parameter bridge and the docs need it."""
-
-    name: str
-    type: type
-    unit: str
-    desc: str
-    range: tuple[float | None, float | None]
-    choices: tuple[str, ...] | None
-    live: bool
-    required: bool
+    def cross_checks(self) -> list[str]:
+        """Relations between parameters that single ranges cannot express."""
+        return _cross_checks(self)
 
 
 def iter_specs() -> Iterator[ParamSpec]:
-    """Yield every parameter of the schema in file order."""
-    for gname, cls in GROUPS.items():
-        for f in fields(cls):
-            m = f.metadata
-            ftype = {'float': float, 'bool': bool, 'str': str}[f.type if isinstance(f.type, str)
-                                                               else f.type.__name__]
-            yield ParamSpec(f'{gname}.{f.name}', ftype, m['unit'], m['desc'], m['range'],
-                            m['choices'], m['live'], f.default is dataclasses.MISSING)
-
-
-def _fmt(v: float) -> str:
-    return f'{v:.6g}'
-
-
-def _range_text(s: ParamSpec) -> str:
-    lo, hi = s.range
-    return f'[{_fmt(lo)}, {_fmt(hi)}] {s.unit}'
-
-
-def _unknown_key_line(key: str) -> str:
-    names = [s.name for s in iter_specs()]
-    close = difflib.get_close_matches(key, names, n=1, cutoff=0.6)
-    if not close:
-        # Compare within the same group name too (e.g. 'spool.mc' vs 'spool.m_c').
-        group, _, name = key.partition('.')
-        close = difflib.get_close_matches(name, [n.split('.')[1] for n in names
-                                                 if n.startswith(group + '.')], n=1)
-        close = [f'{group}.{c}' for c in close]
-    hint = f' (did you mean {close[0]}?)' if close else ''
-    return f'{key}: unknown parameter{hint}'
-
-
-def check_value(s: ParamSpec, value: Any) -> tuple[Any, str | None]:
-    """Coerce and check one value; return ``(value, None)`` or ``(None, error line)``."""
-    if s.type is bool:
-        if isinstance(value, bool):
-            return value, None
-        return None, f'{s.name} = {value!r}: expected true or false ({s.desc})'
-    if s.type is str:
-        if isinstance(value, str) and (s.choices is None or value in s.choices):
-            return value, None
-        return None, f'{s.name} = {value!r}: expected one of {", ".join(s.choices or ())}'
-    if s.type is int:
-        lo, hi = s.range
-        if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
-            return None, f'{s.name} = {value!r}: expected an integer in [{lo}, {hi}]'
-        return value, None
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        hint = ''
-        if isinstance(value, str):
-            try:
-                float(value)
-                hint = (' (YAML read it as text: write a dot and a signed exponent, '
-                        'e.g. 1.5e+9)')
-            except ValueError:
-                pass
-        return None, (f'{s.name} = {value!r}: not a number{hint}; expected {s.unit} '
-                      f'in {_range_text(s)}')
-    value = float(value)
-    lo, hi = s.range
-    if not math.isfinite(value):
-        return None, f'{s.name} = {value!r}: not finite; expected {s.unit} in {_range_text(s)}'
-    if (lo is not None and value < lo) or (hi is not None and value > hi):
-        hint = ''
-        if s.unit in _UNIT_HINTS and value > 0:
-            factor, uname = _UNIT_HINTS[s.unit]
-            conv = value * factor
-            if (lo is None or conv >= lo) and (hi is None or conv <= hi):
-                hint = (f' (looks like a value in {uname}: {_fmt(value)} {uname} = '
-                        f'{_fmt(conv)} {s.unit})')
-        return None, (f'{s.name} = {_fmt(value)} {s.unit}: outside the accepted range '
-                      f'{_range_text(s)} ({s.desc}){hint}')
-    return value, None
-
-
-def _flatten(data: Mapping[str, Any], errors: list[str]) -> dict[str, Any]:
-    """Accept nested groups or dotted keys; return ``{'group.name': value}``."""
-    flat: dict[str, Any] = {}
-    for key, val in data.items():
-        key = str(key)
-        if isinstance(val, Mapping):
-            for sub, v in val.items():
-                if isinstance(v, Mapping):
-                    errors.append(f'{key}.{sub}: unexpected nested group')
-                else:
-                    flat[f'{key}.{sub}'] = v
-        elif '.' in key:
-            flat[key] = val
-        else:
-            errors.append(f'{key}: expected a parameter group ({", ".join(GROUPS)})')
-    return flat
+    """Every plant parameter of the schema, in file order."""
+    return iter(specs_of(Params))
 
 
 def _cross_checks(p: Params) -> list[str]:
@@ -353,31 +229,31 @@ def _cross_checks(p: Params) -> list[str]:
 
     lhs, rhs = sp.phi_s * sp.I_max, sp.K_a * p.pump.x_a_max
     if rel(lhs, rhs) > REL_TOL:
-        out.append(f'design condition D1 violated: phi_s*I_max = {_fmt(sp.phi_s)} N/A * '
-                   f'{_fmt(sp.I_max)} A = {_fmt(lhs)} N but K_a*x_a_max = {_fmt(sp.K_a)} N/m * '
-                   f'{_fmt(p.pump.x_a_max)} m = {_fmt(rhs)} N (must be equal within '
+        out.append(f'design condition D1 violated: phi_s*I_max = {fmt(sp.phi_s)} N/A * '
+                   f'{fmt(sp.I_max)} A = {fmt(lhs)} N but K_a*x_a_max = {fmt(sp.K_a)} N/m * '
+                   f'{fmt(p.pump.x_a_max)} m = {fmt(rhs)} N (must be equal within '
                    f'{REL_TOL:.0e}, else eq. 11 does not hold)')
     s_a = math.pi * ac.d_a ** 2 / 4.0
     if rel(ac.S_a, s_a) > REL_TOL:
-        out.append(f'actuator.S_a = {_fmt(ac.S_a)} m^2 disagrees with pi*d_a^2/4 = {_fmt(s_a)} '
-                   f'm^2 (d_a = {_fmt(ac.d_a)} m): change both')
+        out.append(f'actuator.S_a = {fmt(ac.S_a)} m^2 disagrees with pi*d_a^2/4 = {fmt(s_a)} '
+                   f'm^2 (d_a = {fmt(ac.d_a)} m): change both')
     mu = ac.h_a * math.sqrt(2.0 / p.fluid.rho)
     if rel(ac.mu_a, mu) > REL_TOL:
-        out.append(f'actuator.mu_a = {_fmt(ac.mu_a)} disagrees with h_a*sqrt(2/rho) = {_fmt(mu)}'
+        out.append(f'actuator.mu_a = {fmt(ac.mu_a)} disagrees with h_a*sqrt(2/rho) = {fmt(mu)}'
                    f' (eq. 4): change both')
     if p.relief.p_full <= p.relief.p_crack:
-        out.append(f'relief.p_full = {_fmt(p.relief.p_full)} Pa must exceed relief.p_crack = '
-                   f'{_fmt(p.relief.p_crack)} Pa')
+        out.append(f'relief.p_full = {fmt(p.relief.p_full)} Pa must exceed relief.p_crack = '
+                   f'{fmt(p.relief.p_crack)} Pa')
     if ac.P_a_bar >= p.line.P_l_bar:
-        out.append(f'actuator.P_a_bar = {_fmt(ac.P_a_bar)} Pa must be below line.P_l_bar = '
-                   f'{_fmt(p.line.P_l_bar)} Pa (the pilot valve feeds the actuator from the line)')
+        out.append(f'actuator.P_a_bar = {fmt(ac.P_a_bar)} Pa must be below line.P_l_bar = '
+                   f'{fmt(p.line.P_l_bar)} Pa (the pilot valve feeds the actuator from the line)')
     v_min = ac.V_a0 - ac.S_a * p.x_a_stop
     if v_min <= ac.V_a_min:
-        out.append(f'actuator.V_a0 = {_fmt(ac.V_a0)} m^3 leaves {_fmt(v_min)} m^3 at full stroke,'
-                   f' not above actuator.V_a_min = {_fmt(ac.V_a_min)} m^3')
+        out.append(f'actuator.V_a0 = {fmt(ac.V_a0)} m^3 leaves {fmt(v_min)} m^3 at full stroke,'
+                   f' not above actuator.V_a_min = {fmt(ac.V_a_min)} m^3')
     if p.i_full > sp.I_max * (1.0 + REL_TOL):
-        out.append(f'full displacement needs i_s = {_fmt(p.i_full)} A beyond I_max = '
-                   f'{_fmt(sp.I_max)} A (eq. 2)')
+        out.append(f'full displacement needs i_s = {fmt(p.i_full)} A beyond I_max = '
+                   f'{fmt(sp.I_max)} A (eq. 2)')
     return out
 
 
@@ -387,58 +263,9 @@ def params_from_dict(data: Mapping[str, Any], source: str | None = None) -> Para
     Raises
     ------
     ParamError
-        With one line per unknown, missing or bad value.
+        With one line per unknown, missing or bad value, then per violated relation.
     """
-    errors: list[str] = []
-    flat = _flatten(data, errors)
-    specs = {s.name: s for s in iter_specs()}
-    values: dict[str, dict[str, Any]] = {g: {} for g in GROUPS}
-    for key, val in flat.items():
-        s = specs.get(key)
-        if s is None:
-            errors.append(_unknown_key_line(key))
-            continue
-        v, err = check_value(s, val)
-        if err:
-            errors.append(err)
-        else:
-            values[key.split('.')[0]][key.split('.')[1]] = v
-    for name, s in specs.items():
-        if s.required and name not in flat:
-            errors.append(f'{name}: missing ({s.unit}, {s.desc})')
-    if errors:
-        raise ParamError(errors, source)
-    p = Params(**{g: cls(**values[g]) for g, cls in GROUPS.items()})
-    errors = _cross_checks(p)
-    if errors:
-        raise ParamError(errors, source)
-    return p
-
-
-def ros_parameters(doc: Any) -> Mapping[str, Any]:
-    """Return the mapping under ``<node>: ros__parameters:``, or the document itself."""
-    if isinstance(doc, Mapping):
-        for val in doc.values():
-            if isinstance(val, Mapping) and 'ros__parameters' in val:
-                return val['ros__parameters'] or {}
-        return doc
-    return {}
-
-
-def read_yaml(path: str | Path) -> Any:
-    """Read a YAML file, turning I/O and syntax problems into :class:`ParamError`."""
-    path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ParamError([f'cannot read {path}: {exc.strerror or exc}']) from None
-    try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, 'problem_mark', None)
-        where = f' at line {mark.line + 1}' if mark else ''
-        raise ParamError([f'{path}: not valid YAML{where}: {getattr(exc, "problem", exc)}']) \
-            from None
+    return build(Params, data, source)
 
 
 def load_params(path: str | Path) -> Params:
@@ -452,11 +279,7 @@ def load_params(path: str | Path) -> Params:
     ParamError
         With one line per problem (unknown key, missing key, non-number, out of range, D1).
     """
-    doc = read_yaml(path)
-    data = ros_parameters(doc)
-    if not isinstance(data, Mapping) or not data:
-        raise ParamError([f'{path}: no parameters found'])
-    return params_from_dict(data, source=str(path))
+    return params_from_dict(read_params_file(path), source=str(path))
 
 
 def default_params_path() -> Path:

@@ -30,7 +30,8 @@ from typing import Any
 import numpy as np
 
 from .errors import HydropumpError
-from .params import default_params_path, load_params, ParamError, Params, read_yaml
+from .params import default_params_path, load_params, Params
+from .schema import ParamError, read_yaml
 
 SIGNALS = {
     'current': ('A', 'absolute solenoid current'),

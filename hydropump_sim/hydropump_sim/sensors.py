@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Mapping
+import dataclasses
 from dataclasses import dataclass, fields
 import math
 from pathlib import Path
@@ -21,7 +22,17 @@ from typing import Any
 
 import numpy as np
 
-from .params import check_value, ParamError, ParamSpec, read_yaml, ros_parameters
+from .schema import (
+    build,
+    check_all,
+    group,
+    ParamError,
+    ParamSpec,
+    read_params_file,
+    spec,
+    specs_of,
+    to_flat,
+)
 
 # Measured signals and their SI units.
 SIGNALS = {
@@ -36,8 +47,7 @@ SIGNALS = {
     'actuator_position': 'm',
 }
 
-# Accepted ranges per field: delay and filter in s; noise and quantum relative to the unit.
-_FIELD_RANGES = {'delay': (0.0, 2.0), 'filter_tau': (0.0, 10.0)}
+# Largest noise and quantum per unit: beyond these a value was typed in another unit.
 _SCALE_MAX = {'A': 1.0, 'm^3/s': 1.0e-2, 'Pa': 1.0e7, 'm': 1.0e-2}
 
 
@@ -55,6 +65,40 @@ class SensorSpec:
         return any(getattr(self, f.name) > 0.0 for f in fields(self))
 
 
+def _sensor_class(unit: str) -> type:
+    """The schema of one signal's sensor, its noise and quantum in the signal's ``unit``."""
+    top = _SCALE_MAX[unit]
+    cls = dataclasses.make_dataclass(f'Sensor_{unit}', [
+        ('delay', float, spec('s', 'transport/measurement delay', 0.0, 2.0, default=0.0)),
+        ('noise_std', float, spec(unit, 'white noise std', 0.0, top, default=0.0)),
+        ('quantum', float, spec(unit, 'quantisation step', 0.0, top, default=0.0)),
+        ('filter_tau', float, spec('s', 'first-order filter time constant', 0.0, 10.0,
+                                   default=0.0)),
+    ], bases=(SensorSpec,), frozen=True)
+    cls.__module__ = __name__
+    return cls
+
+
+_SENSOR_CLASSES = {unit: _sensor_class(unit) for unit in _SCALE_MAX}
+
+# Group ``sensors``: one sensor per measured signal, and the noise seed.
+Sensors = dataclasses.make_dataclass('Sensors', [
+    (sig, _SENSOR_CLASSES[unit], group(factory=_SENSOR_CLASSES[unit]))
+    for sig, unit in SIGNALS.items()] + [
+    ('seed', int, spec('-', 'seed of the sensor noise (one stream per signal)', 0,
+                       2 ** 31 - 1, default=0)),
+], frozen=True)
+Sensors.__module__ = __name__
+Sensors.__doc__ = 'Group ``sensors``: the sensor model of every measured signal and the seed.'
+
+
+@dataclass(frozen=True)
+class SensorConfig:
+    """The ``sensors`` group of a node's parameters (its schema root)."""
+
+    sensors: Sensors = group(factory=Sensors)
+
+
 @dataclass(frozen=True)
 class SensorProfile:
     """Sensor models of every signal, the noise seed and plant overrides of the profile."""
@@ -66,65 +110,55 @@ class SensorProfile:
     def spec(self, signal: str) -> SensorSpec:
         return self.sensors.get(signal, SensorSpec())
 
+    def flat(self) -> dict[str, Any]:
+        """The ``sensors.*`` parameters of this profile (ROS names), every signal listed."""
+        return to_flat(_config(self))
 
-def sensor_specs() -> list[ParamSpec]:
-    """Schema of the ``sensors`` group (ROS parameter names and ranges)."""
-    out = []
-    for sig, unit in SIGNALS.items():
-        for f in fields(SensorSpec):
-            if f.name in _FIELD_RANGES:
-                u, rng = 's', _FIELD_RANGES[f.name]
-            else:
-                u, rng = unit, (0.0, _SCALE_MAX[unit])
-            desc = {'delay': 'transport/measurement delay', 'noise_std': 'white noise std',
-                    'quantum': 'quantisation step', 'filter_tau': 'first-order filter'}[f.name]
-            out.append(ParamSpec(f'sensors.{sig}.{f.name}', float, u, f'{desc} of {sig}', rng,
-                                 None, True, False))
-    return out
+
+def _config(profile: SensorProfile) -> SensorConfig:
+    kw = {sig: _SENSOR_CLASSES[unit](**dataclasses.asdict(profile.spec(sig)))
+          for sig, unit in SIGNALS.items()}
+    return SensorConfig(Sensors(**kw, seed=profile.seed))
+
+
+def sensor_specs() -> tuple[ParamSpec, ...]:
+    """Schema of the ``sensors`` group (ROS parameter names, ranges, defaults)."""
+    return specs_of(SensorConfig)
 
 
 def profile_from_dict(data: Mapping[str, Any], source: str | None = None) -> SensorProfile:
-    """Validate a ``{sensors: {...}, <plant group>: {...}}`` mapping into a profile."""
-    errors: list[str] = []
-    specs = {s.name: s for s in sensor_specs()}
-    sensors_raw = data.get('sensors', {}) or {}
-    seed = 0
-    per_signal: dict[str, dict] = {}
-    if not isinstance(sensors_raw, Mapping):
-        raise ParamError(['sensors: expected a mapping'], source)
-    for sig, val in sensors_raw.items():
-        if sig == 'seed':
-            if isinstance(val, bool) or not isinstance(val, int) or val < 0:
-                errors.append(f'sensors.seed = {val!r}: expected a non-negative integer')
-            else:
-                seed = val
+    """Validate a ``{sensors: {...}, <plant group>: {...}}`` mapping into a profile.
+
+    Entries outside ``sensors`` are plant parameters the profile overrides (the bench's
+    dither); they are checked against the plant schema where the profile is applied.
+    """
+    sensors = {k: v for k, v in data.items() if k == 'sensors' or k.startswith('sensors.')}
+    if 'sensors' in sensors and not isinstance(sensors['sensors'], Mapping):
+        raise ParamError(['sensors: expected a mapping of signals'], source)
+    cfg = build(SensorConfig, sensors, source, what='sensor parameter')
+    active = {sig: SensorSpec(**dataclasses.asdict(getattr(cfg.sensors, sig)))
+              for sig in SIGNALS}
+    active = {sig: sp for sig, sp in active.items() if sp.active}
+    overrides = {}
+    for key, val in data.items():
+        if key in sensors:
             continue
-        if sig not in SIGNALS or not isinstance(val, Mapping):
-            errors.append(f'sensors.{sig}: unknown signal (use {", ".join(SIGNALS)})')
-            continue
-        for key, v in val.items():
-            s = specs.get(f'sensors.{sig}.{key}')
-            if s is None:
-                errors.append(f'sensors.{sig}.{key}: unknown (use delay, noise_std, quantum, '
-                              'filter_tau)')
-                continue
-            v, err = check_value(s, v)
-            if err:
-                errors.append(err)
-            else:
-                per_signal.setdefault(sig, {})[key] = v
-    if errors:
-        raise ParamError(errors, source)
-    overrides = {f'{g}.{k}': v for g, grp in data.items() if g != 'sensors'
-                 and isinstance(grp, Mapping) for k, v in grp.items()}
-    return SensorProfile({s: SensorSpec(**kw) for s, kw in per_signal.items()}, seed,
-                         overrides or None)
+        if isinstance(val, Mapping):
+            overrides.update({f'{key}.{k}': v for k, v in val.items()})
+        else:
+            overrides[key] = val
+    return SensorProfile(active, cfg.sensors.seed, overrides or None)
+
+
+def check_profile_values(flat: Mapping[str, Any]) -> list[str]:
+    """One line per bad ``sensors.*`` value of a flat mapping (node parameters)."""
+    return check_all(SensorConfig, {k: v for k, v in flat.items() if k.startswith('sensors.')},
+                     what='sensor parameter')[1]
 
 
 def load_profile(path: str | Path) -> SensorProfile:
     """Load a sensor profile file such as ``config/bench.yaml``."""
-    doc = ros_parameters(read_yaml(path))
-    return profile_from_dict(doc if isinstance(doc, Mapping) else {}, str(path))
+    return profile_from_dict(read_params_file(path), str(path))
 
 
 class SensorChannel:

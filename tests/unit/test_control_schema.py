@@ -7,7 +7,7 @@ import yaml
 
 from hydropump_ctrl.control import schema
 from hydropump_ctrl.control.design import design_config
-from hydropump_sim.params import ParamError, ParamSpec
+from hydropump_sim.schema import ParamError, ParamSpec, ros_parameters
 
 ROOT = Path(__file__).resolve().parents[2]
 CONTROLLER_YAML = ROOT / 'config' / 'controller.yaml'
@@ -95,7 +95,7 @@ def test_limits_must_stay_inside_eq2(params):
 
 def test_ros_yaml_round_trip(cfg):
     text = cfg.to_ros_yaml('# header')
-    again = schema.config_from_dict(schema.ros_parameters(yaml.safe_load(text)))
+    again = schema.config_from_dict(ros_parameters(yaml.safe_load(text)))
     assert again == cfg
     # Every float comes back as a float (YAML 1.1 reads 1e-5 as text).
     for line in text.splitlines():

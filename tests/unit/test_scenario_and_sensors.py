@@ -92,5 +92,5 @@ def test_bench_profile():
     assert prof.plant_overrides['input.dither_amp'] > 0.0
     with pytest.raises(ParamError, match='sensors.line_flow.delay'):
         profile_from_dict({'sensors': {'line_flow': {'delay': -1.0}}})
-    with pytest.raises(ParamError, match='unknown signal'):
+    with pytest.raises(ParamError, match='unknown sensor parameter .did you mean'):
         profile_from_dict({'sensors': {'flow': {'delay': 0.1}}})

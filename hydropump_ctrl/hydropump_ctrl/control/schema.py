@@ -1,10 +1,10 @@
 """Typed, range-checked controller parameters: one schema for the library, the design tool and
 the future ROS parameter bridge.
 
-The schema follows :mod:`hydropump_sim.params`: dataclass field metadata made with
-:func:`hydropump_sim.params.spec` (unit, description, range or choices, default, ``live``), and
-every value is checked with :func:`hydropump_sim.params.check_value`, so a bad value gives one
-line such as ``emc.tau_control = 0 s: outside the accepted range [0.001, 5] s (...)``.
+The schema is :mod:`hydropump_sim.schema`'s: dataclass field metadata made with
+:func:`~hydropump_sim.schema.spec` (unit, description, range or choices, default, ``live``),
+and every value is checked by :func:`~hydropump_sim.schema.check_value`, so a bad value gives
+one line such as ``emc.tau_control = 0 s: outside the accepted range [0.001, 5] s (...)``.
 
 Parameter names are dotted snake_case groups, SI units, the paper's symbols inside the
 ``model`` group. ``live`` parameters (gains, eigenvalues, limits, references, mode, excitation)
@@ -19,20 +19,24 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
 import dataclasses
-from dataclasses import dataclass, fields
-import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
-from hydropump_sim.params import (
-    check_value,
+from hydropump_sim.schema import (
+    build,
+    group,
     ParamError,
     ParamSpec,
-    read_yaml,
-    ros_parameters,
+    read_params_file,
     spec,
+    spec_map,
+    specs_of,
+    to_flat,
+    unknown_key_line,
+)
+from hydropump_sim.schema import (
+    dump_ros_yaml as _dump,
 )
 
 MODES = ('flow', 'margin', 'open_loop')
@@ -248,46 +252,14 @@ class Excitation:
                         default=True, live=True)
 
 
-GROUPS = {
-    'controller': General, 'limits': Limits, 'reference': Reference, 'model': Model,
-    'emc': Emc, 'pi.flow': PiFlow, 'pi.margin': PiMargin, 'excitation': Excitation,
-}
-
-
-def _type_of(f: dataclasses.Field) -> type:
-    name = f.type if isinstance(f.type, str) else f.type.__name__
-    return {'float': float, 'bool': bool, 'str': str, 'int': int}[name]
-
-
 def iter_specs() -> Iterator[ParamSpec]:
-    """Yield every controller parameter of the schema (ROS names, SI units) in file order."""
-    for gname, cls in GROUPS.items():
-        for f in fields(cls):
-            m = f.metadata
-            yield ParamSpec(f'{gname}.{f.name}', _type_of(f), m['unit'], m['desc'], m['range'],
-                            m['choices'], m['live'],
-                            f.default is dataclasses.MISSING)
+    """Every controller parameter of the schema (ROS names, SI units) in file order."""
+    return iter(specs_of(ControllerConfig))
 
 
 def specs() -> dict[str, ParamSpec]:
     """Schema entries by name."""
-    return {s.name: s for s in iter_specs()}
-
-
-def check(s: ParamSpec, value: Any) -> tuple[Any, str | None]:
-    """Coerce and check one value: :func:`hydropump_sim.params.check_value` plus integers."""
-    if s.type is int:
-        ok = isinstance(value, int) and not isinstance(value, bool)
-        if not ok and isinstance(value, float) and value.is_integer():
-            value, ok = int(value), True
-        if not ok:
-            return None, f'{s.name} = {value!r}: expected an integer ({s.desc})'
-        lo, hi = s.range
-        if (lo is not None and value < lo) or (hi is not None and value > hi):
-            return None, (f'{s.name} = {value}: outside the accepted range [{lo}, {hi}] '
-                          f'({s.desc})')
-        return value, None
-    return check_value(s, value)
+    return spec_map(ControllerConfig)
 
 
 @dataclass(frozen=True)
@@ -298,14 +270,14 @@ class ControllerConfig:
     :meth:`replace`, which re-validates everything and raises :class:`ParamError`.
     """
 
-    controller: General
-    limits: Limits
-    reference: Reference
-    model: Model
-    emc: Emc
-    pi_flow: PiFlow
-    pi_margin: PiMargin
-    excitation: Excitation
+    controller: General = group()
+    limits: Limits = group()
+    reference: Reference = group()
+    model: Model = group()
+    emc: Emc = group()
+    pi_flow: PiFlow = group('pi.flow')
+    pi_margin: PiMargin = group('pi.margin')
+    excitation: Excitation = group()
 
     @property
     def period(self) -> float:
@@ -324,8 +296,7 @@ class ControllerConfig:
 
     def flat(self) -> dict[str, Any]:
         """Flat ``{'group.name': value}`` dictionary (ROS parameter names)."""
-        return {f'{g}.{f.name}': getattr(self.group(g), f.name)
-                for g, cls in GROUPS.items() for f in fields(cls)}
+        return to_flat(self)
 
     def replace(self, values: Mapping[str, Any]) -> ControllerConfig:
         """Return a re-validated copy with dotted keys replaced (one line per problem)."""
@@ -336,18 +307,6 @@ class ControllerConfig:
     def to_ros_yaml(self, header: str = '') -> str:
         """The configuration as a ROS 2 params file (``/**: ros__parameters:``)."""
         return dump_ros_yaml(self.flat(), header)
-
-
-def _flatten(data: Mapping[str, Any], errors: list[str], prefix: str = '') -> dict[str, Any]:
-    """Nested groups (``pi: {flow: {p: ..}}``) or dotted keys to ``{'pi.flow.p': ..}``."""
-    flat: dict[str, Any] = {}
-    for key, val in data.items():
-        key = f'{prefix}{key}'
-        if isinstance(val, Mapping):
-            flat.update(_flatten(val, errors, key + '.'))
-        else:
-            flat[key] = val
-    return flat
 
 
 def _cross_checks(c: ControllerConfig, lo_hi: tuple[float, float] | None) -> list[str]:
@@ -429,38 +388,8 @@ def config_from_dict(data: Mapping[str, Any], source: str | None = None,
     ParamError
         One line per unknown, missing or bad value, then per violated relation.
     """
-    errors: list[str] = []
-    flat = _flatten(data, errors)
-    sp = specs()
-    values: dict[str, dict[str, Any]] = {g: {} for g in GROUPS}
-    for key, val in flat.items():
-        s = sp.get(key)
-        if s is None:
-            errors.append(_unknown_key_line(key, sp))
-            continue
-        v, err = check(s, val)
-        if err:
-            errors.append(err)
-        else:
-            values[key.rsplit('.', 1)[0]][key.rsplit('.', 1)[1]] = v
-    for name, s in sp.items():
-        if s.required and name not in flat:
-            errors.append(f'{name}: missing ({s.unit}, {s.desc})')
-    if errors:
-        raise ParamError(errors, source)
-    cfg = ControllerConfig(**{g.replace('.', '_'): cls(**values[g])
-                              for g, cls in GROUPS.items()})
-    errors = _cross_checks(cfg, current_limits)
-    if errors:
-        raise ParamError(errors, source)
-    return cfg
-
-
-def _unknown_key_line(key: str, sp: Mapping[str, ParamSpec]) -> str:
-    import difflib
-    close = difflib.get_close_matches(key, list(sp), n=1, cutoff=0.6)
-    hint = f' (did you mean {close[0]}?)' if close else ''
-    return f'{key}: unknown controller parameter{hint}'
+    return build(ControllerConfig, data, source, what='controller parameter',
+                 checks=lambda cfg: _cross_checks(cfg, current_limits))
 
 
 def validate_parameter(config: ControllerConfig, name: str, value: Any) -> str | None:
@@ -471,7 +400,7 @@ def validate_parameter(config: ControllerConfig, name: str, value: Any) -> str |
     """
     s = specs().get(name)
     if s is None:
-        return _unknown_key_line(name, specs())
+        return unknown_key_line(name, specs(), 'controller parameter')
     if not s.live:
         return f'{name} is read-only while the controller runs (it fixes the embedded model)'
     try:
@@ -490,56 +419,11 @@ def load_config(path: str | Path, current_limits: tuple[float, float] | None = N
     ParamError
         With one line per problem.
     """
-    doc = ros_parameters(read_yaml(path))
-    if not isinstance(doc, Mapping) or not doc:
-        raise ParamError([f'{path}: no parameters found'])
-    return config_from_dict(doc, source=str(path), current_limits=current_limits)
+    return config_from_dict(read_params_file(path), source=str(path),
+                            current_limits=current_limits)
 
 
 def dump_ros_yaml(flat: Mapping[str, Any], header: str = '',
                   comments: Mapping[str, str] | None = None) -> str:
     """Write ``{'group.name': value}`` as a nested ROS 2 params file with unit comments."""
-    sp = specs()
-    comments = comments or {}
-    lines = [ln.rstrip() for ln in header.splitlines()]
-    lines += ['/**:', '  ros__parameters:']
-    prev: list[str] = []
-    for key, val in flat.items():
-        parts = key.split('.')
-        group, name = parts[:-1], parts[-1]
-        common = 0
-        while common < min(len(group), len(prev)) and group[common] == prev[common]:
-            common += 1
-        for depth in range(common, len(group)):
-            lines.append('    ' + '  ' * depth + group[depth] + ':')
-        prev = group
-        text = yaml.safe_dump(val, default_flow_style=True).strip().removesuffix('...')
-        text = text.strip()
-        if isinstance(val, float):
-            text = _yaml_float(val)
-        s = sp.get(key)
-        note = comments.get(key) or (f'{s.unit}, {s.desc}' if s else '')
-        pad = '    ' + '  ' * len(group)
-        entry = f'{pad}{name}: {text}'
-        lines.append(f'{entry:<44s} # {note}' if note else entry)
-    return '\n'.join(lines) + '\n'
-
-
-def _yaml_float(v: float) -> str:
-    """A float that YAML 1.1 (PyYAML, rclpy) reads back as a float, never as text.
-
-    Ten significant digits; a mantissa always has a dot and an exponent always a sign, because
-    YAML 1.1 reads ``1e-5`` as a string.
-    """
-    if math.isinf(v):
-        return '.inf' if v > 0 else '-.inf'
-    text = f'{float(v):.10g}'
-    if 'e' in text:
-        mant, exp = text.split('e')
-        if '.' not in mant:
-            mant += '.0'
-        sign = '-' if exp.startswith('-') else '+'
-        text = f'{mant}e{sign}{exp.lstrip("+-").lstrip("0") or "0"}'
-    elif '.' not in text and 'n' not in text:
-        text += '.0'
-    return text
+    return _dump(flat, header, comments, specs())

@@ -26,7 +26,7 @@ from rclpy.exceptions import (
 )
 from rclpy.node import Node
 
-from hydropump_sim.params import check_value, ParamSpec, read_yaml, ros_parameters
+from hydropump_sim.schema import check_value, ParamSpec, read_yaml, ros_parameters
 
 # Parameters every rclpy node may receive without declaring them.
 _BUILTIN = ('use_sim_time', 'start_type_description_service')

@@ -38,7 +38,7 @@ from std_msgs.msg import Float64
 
 from hydropump_ctrl.control import iter_specs, make_controller, validate_parameter
 from hydropump_ctrl.control.schema import config_from_dict
-from hydropump_sim.params import ParamError, ParamSpec
+from hydropump_sim.schema import ParamError, ParamSpec
 
 from . import bridge
 

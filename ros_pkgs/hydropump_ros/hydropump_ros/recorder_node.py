@@ -44,7 +44,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import get_typestore, Stores
 from std_srvs.srv import Trigger
 
-from hydropump_sim.params import ParamSpec
+from hydropump_sim.schema import ParamSpec
 
 from . import bridge
 

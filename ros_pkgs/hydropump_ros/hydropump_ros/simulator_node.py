@@ -36,14 +36,10 @@ from std_srvs.srv import SetBool, Trigger
 
 from hydropump_sim import Simulator
 from hydropump_sim.model import OUTPUTS
-from hydropump_sim.params import (
-    default_params_path,
-    ParamError,
-    params_from_dict,
-    ParamSpec,
-)
+from hydropump_sim.params import default_params_path, params_from_dict
 from hydropump_sim.params import iter_specs as plant_specs
 from hydropump_sim.scenario import load_scenario, ScenarioError
+from hydropump_sim.schema import ParamError, ParamSpec
 from hydropump_sim.sensors import (
     load_profile,
     profile_from_dict,
@@ -153,7 +149,7 @@ class SimulatorNode(Node):
         plant, errs = bridge.declare(self, list(plant_specs()), plant_defaults)
         errors += errs
         known = ([s.name for s in plant_specs()] + [s.name for s in NODE_SPECS]
-                 + [s.name for s in sensor_specs()] + ['sensors.seed'])
+                 + [s.name for s in sensor_specs()])
         errors += bridge.unknown_overrides(self, known)
         if errors:
             raise bridge.StartupError(errors)
@@ -170,20 +166,19 @@ class SimulatorNode(Node):
         more, errs = bridge.declare(self, NODE_SPECS[3:], node_defaults)
         cfg.update(more)
         errors += errs
+        sensor_defaults['sensors.seed'] = seed
         sensors, errs = bridge.declare(self, sensor_specs(), sensor_defaults, live=False)
-        errors += errs
-        seed_spec = ParamSpec('sensors.seed', int, '-', 'noise seed', (0, 2**31 - 1), None,
-                              False, False)
-        seed_vals, errs = bridge.declare(self, [seed_spec], {'sensors.seed': seed})
         errors += errs
         if errors:
             raise bridge.StartupError(errors)
         nested = {'sensors': {}}
         for name, v in sensors.items():
+            if name == 'sensors.seed':
+                continue
             _, sig, field = name.split('.')
             if v:
                 nested['sensors'].setdefault(sig, {})[field] = v
-        nested['sensors']['seed'] = seed_vals['sensors.seed']
+        nested['sensors']['seed'] = sensors['sensors.seed']
         self.profile = profile_from_dict(nested)
         self._cfg = cfg
         self.scenario = None
