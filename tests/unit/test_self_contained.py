@@ -22,7 +22,9 @@ OUTSIDE = [
     (re.compile(r'(?<![\w.~-])/(?:home|work|root|mnt|Users)/'), 'absolute path of a machine'),
     (re.compile(r'\bROOT\.parent\b'), 'path above the repository root'),
 ]
-ISSUES = re.compile(r'\bissues?\s*#?\s*I?\d+|/(?:issues|pull)/\d+', re.I)
+# An issue by number, a tracker address, or the definite article before the word, which here
+# always stands for a tracker entry.
+ISSUES = re.compile(r'\bissues?\s*#?\s*I?\d+|/(?:issues|pull)/\d+|\bthe issue\b', re.I)
 PARENTS = re.compile(r'Path\(__file__\)(?:\.resolve\(\))?\.parents\[(\d+)\]')
 UP = re.compile(r'(?<![\w.])((?:\.\./)+)[\w.-]+')
 MD_LINK = re.compile(r'\]\(([^)\s]+)\)')
@@ -95,13 +97,13 @@ def test_no_reference_outside_the_repository():
                     pytrace=False)
 
 
-def test_no_issue_tracker_numbers():
+def test_no_issue_tracker_references():
     """Code and docs describe the project itself, not entries of an issue tracker."""
-    offenders = [_line(name, k, 'issue number', text)
+    offenders = [_line(name, k, 'issue tracker', text)
                  for name, lines in _text_files() for k, text in enumerate(lines, 1)
                  if ISSUES.search(text)]
     if offenders:
-        pytest.fail(_report('mentions of issue numbers', offenders), pytrace=False)
+        pytest.fail(_report('mentions of issue-tracker entries', offenders), pytrace=False)
 
 
 def _anchors(md: Path) -> set[str]:
