@@ -63,7 +63,7 @@ def test_no_command_before_activation_then_bumpless_start(nodes, test_node):
 
 def test_flow_step_end_to_end_in_lock_step_with_the_bench_profile(nodes, test_node):
     """30 -> 70 % flow step through the real nodes, bench sensors (55 ms flow delay, noise,
-    quantisation, dither): the issue's targets on the true pump flow (from the plate stroke,
+    quantisation, dither): the targets of docs/control.md on the true pump flow (from the plate stroke,
     averaged over the dither period as the paper filters it)."""
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64

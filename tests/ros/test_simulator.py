@@ -1,5 +1,5 @@
 """The simulator node over real DDS: topics, stamps, rates, lock-step physics, services,
-live parameters and every bad-input case of the issue."""
+live parameters and every bad-input case."""
 
 import math
 import subprocess

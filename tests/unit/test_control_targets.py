@@ -1,4 +1,4 @@
-"""Issue 4's target table on the fine-model simulator with the bench sensors (55 ms flow delay,
+"""The target table of docs/control.md on the fine-model simulator with the bench sensors (55 ms flow delay,
 noise, quantisation, 150 Hz dither), fixed seeds, controllers designed from the simplified model
 and eq. 19 only (config/controller.yaml)."""
 
