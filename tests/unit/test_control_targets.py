@@ -1,6 +1,6 @@
-"""The target table of docs/control.md on the fine-model simulator with the bench sensors (55 ms flow delay,
-noise, quantisation, 150 Hz dither), fixed seeds, controllers designed from the simplified model
-and eq. 19 only (config/controller.yaml)."""
+"""The target table of docs/control.md on the fine-model simulator with the bench sensors
+(55 ms flow delay, noise, quantisation, 150 Hz dither), fixed seeds, controllers designed from
+the simplified model and eq. 19 only (config/controller.yaml)."""
 
 from pathlib import Path
 
