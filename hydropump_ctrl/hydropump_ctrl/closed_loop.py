@@ -19,7 +19,7 @@ import numpy as np
 from scipy.optimize import brentq
 
 from hydropump_sim import equilibrium, Simulator
-from hydropump_sim.metrics import step_figures, StepFigures
+from hydropump_sim.metrics import dither_window, moving_average, step_figures, StepFigures
 from hydropump_sim.model import OUTPUTS
 from hydropump_sim.params import Params
 from hydropump_sim.sensors import SensorBank, SensorProfile
@@ -138,23 +138,12 @@ def dither_free(t: np.ndarray, y: np.ndarray, f_dither: float) -> np.ndarray:
 
     The paper filters the dither out of its measurements before judging responses; a window of
     ``k`` periods (3 periods = 20 ms for 150 Hz at 1 kHz) removes the dither and its
-    harmonics exactly and leaves ramps untouched. ``f_dither = 0`` returns ``y``.
+    harmonics exactly and leaves ramps untouched; at the ends the nearest full window.
+    ``f_dither = 0`` returns ``y``.
     """
     if f_dither <= 0.0 or t.size < 3:
         return np.asarray(y, dtype=float)
-    dt = float(t[1] - t[0])
-    per = 1.0 / (f_dither * dt)
-    k = min(range(1, 11), key=lambda k: abs(k * per - round(k * per)))
-    w = max(int(round(k * per)), 1)
-    y = np.asarray(y, dtype=float)
-    if w < 2 or y.size < w:
-        return y
-    # Centred window inside; at the ends the nearest full window (never a padded one, which
-    # would weigh one phase of the ripple twice).
-    c = np.concatenate([[0.0], np.cumsum(y)])
-    left = w // 2
-    start = np.clip(np.arange(y.size) - left, 0, y.size - w)
-    return (c[start + w] - c[start]) / w
+    return moving_average(y, dither_window(float(t[1] - t[0]), f_dither), edges='full')
 
 
 def trim_current(params: Params, *, flow: float | None = None, margin: float | None = None,

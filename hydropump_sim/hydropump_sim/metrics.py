@@ -1,4 +1,5 @@
-"""Step-response figures: 63 % time, rise, overshoot, settling, IAE, fast-drop fraction."""
+"""Step-response figures (63 % time, rise, overshoot, settling, IAE, fast-drop fraction) and
+the one smoothing helper of the project: a centred moving average that takes the dither out."""
 
 from __future__ import annotations
 
@@ -105,3 +106,59 @@ def fast_fraction(t, y, t_step: float, fit_window: tuple[float, float]) -> tuple
     r = (y[sel] - yf) / (y0 - yf)
     slope, icpt = np.polyfit(t[sel] - t_step, np.log(r), 1)
     return 1.0 - math.exp(icpt), -1.0 / slope
+
+
+# --- smoothing -------------------------------------------------------------------------------
+
+EDGES = ('full', 'shrink', 'valid')
+
+
+def dither_window(dt: float, f_dither: float, max_periods: int = 10) -> int:
+    """Samples of the shortest window that spans a whole number of dither periods.
+
+    Of 1..``max_periods`` periods, the count whose length in samples is closest to a whole
+    number (3 periods = 20 samples for 150 Hz at 1 kHz): an average over it cancels the dither
+    and its harmonics. ``f_dither <= 0`` gives 1 (no smoothing).
+    """
+    if f_dither <= 0.0:
+        return 1
+    per = 1.0 / (f_dither * dt)
+    k = min(range(1, max_periods + 1), key=lambda k: abs(k * per - round(k * per)))
+    return max(int(round(k * per)), 1)
+
+
+def moving_average(y, width: int, *, edges: str = 'full') -> np.ndarray:
+    """Centred moving average of ``width`` samples (zero phase for an odd width).
+
+    Sample ``k`` is the mean of ``y[k - width // 2 : k - width // 2 + width]``; an even width
+    is centred half a sample before ``k``. ``edges`` says what the first and last ``width // 2``
+    samples get:
+
+    ``'full'``
+        The nearest full window (never a partial one, which would weigh one phase of a ripple
+        twice).
+    ``'shrink'``
+        The part of the window inside the record.
+    ``'valid'``
+        Nothing: the result holds only the samples with a whole window, ``width - 1`` fewer,
+        the first of them sample ``width // 2``.
+
+    A width below 2, or longer than ``y``, returns ``y`` unchanged (as floats).
+    """
+    if edges not in EDGES:
+        raise ValueError(f'edges must be one of {", ".join(EDGES)}, got {edges!r}')
+    y = np.asarray(y, dtype=float)
+    w = int(width)
+    if w < 2 or y.size < w:
+        return y
+    # Element j of the full convolution is the sum of y[j - w + 1 : j + 1] (zeros outside):
+    # a direct sum per sample, no running sum to accumulate rounding over a long record.
+    s = np.convolve(y, np.ones(w), mode='full')
+    if edges == 'valid':
+        return s[w - 1:y.size] / w
+    start = np.arange(y.size) - w // 2
+    if edges == 'full':
+        start = np.clip(start, 0, y.size - w)
+        return s[start + w - 1] / w
+    count = np.clip(start + w, 0, y.size) - np.clip(start, 0, y.size)
+    return s[start + w - 1] / count

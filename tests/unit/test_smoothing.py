@@ -1,0 +1,62 @@
+"""The one smoothing helper (``hydropump_sim.metrics.moving_average``) and its dither window."""
+
+import math
+
+import numpy as np
+import pytest
+
+from hydropump_ctrl.closed_loop import dither_free
+from hydropump_sim.metrics import dither_window, moving_average
+
+
+def _direct(y, w, k):
+    """Mean of the window of sample ``k`` by definition (``None`` where it leaves ``y``)."""
+    lo = k - w // 2
+    return None if lo < 0 or lo + w > y.size else float(np.mean(y[lo:lo + w]))
+
+
+@pytest.mark.parametrize('w', [2, 5, 20, 21])
+def test_window_of_a_sample_and_the_three_edge_rules(w):
+    y = np.random.default_rng(w).standard_normal(60)
+    full = moving_average(y, w, edges='full')
+    shrink = moving_average(y, w, edges='shrink')
+    valid = moving_average(y, w, edges='valid')
+    assert full.shape == shrink.shape == y.shape and valid.size == y.size - w + 1
+    for k in range(y.size):
+        inside = _direct(y, w, k)
+        if inside is not None:
+            assert full[k] == pytest.approx(inside) and shrink[k] == pytest.approx(inside)
+            assert valid[k - w // 2] == pytest.approx(inside)
+            continue
+        # Full: the nearest whole window; shrink: the part of the window inside the record.
+        lo = min(max(k - w // 2, 0), y.size - w)
+        assert full[k] == pytest.approx(np.mean(y[lo:lo + w]))
+        a, b = max(k - w // 2, 0), min(k - w // 2 + w, y.size)
+        assert shrink[k] == pytest.approx(np.mean(y[a:b]))
+
+
+def test_short_windows_and_bad_edges():
+    y = np.arange(5.0)
+    assert np.array_equal(moving_average(y, 1), y)
+    assert np.array_equal(moving_average(y, 9, edges='shrink'), y)     # longer than y
+    with pytest.raises(ValueError, match='edges'):
+        moving_average(y, 3, edges='same')
+
+
+def test_a_window_of_whole_dither_periods_cancels_the_dither():
+    dt = 1e-3
+    assert dither_window(dt, 150.0) == 20            # 3 periods of 150 Hz at 1 kHz
+    assert dither_window(dt, 100.0) == 10
+    assert dither_window(dt, 0.0) == 1
+    t = np.arange(3000) * dt
+    ramp = 0.2 * t
+    for f in (150.0, 100.0, 37.0):
+        y = ramp + 0.1 * np.sin(2 * math.pi * f * t + 0.3) + 0.02 * np.sin(4 * math.pi * f * t)
+        w = dither_window(dt, f)
+        out = moving_average(y, w, edges='full')
+        # The dither and its harmonic cancel to the window's rounding of the period; a ramp
+        # comes out delayed by the half sample of an even window.
+        lag = 0.5 * dt if w % 2 == 0 else 0.0
+        assert np.max(np.abs(out - (ramp - 0.2 * lag))[w:-w]) < 2e-3, f
+        np.testing.assert_allclose(dither_free(t, y, f), out, rtol=0, atol=1e-15)
+    assert np.array_equal(dither_free(t, ramp, 0.0), ramp)
