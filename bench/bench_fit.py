@@ -20,9 +20,15 @@ import numpy as np
 from scipy import optimize, signal
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from hydropump_ctrl import fopdt, synthetic  # noqa: E402
-from hydropump_ctrl.fit_report import format_table, write_report  # noqa: E402
-from hydropump_ctrl.recording import load_default_params, normalise  # noqa: E402
+from hydropump_ctrl.ident import (  # noqa: E402
+    fit_recordings,
+    format_table,
+    load_default_params,
+    normalise,
+    synthetic,
+    write_report,
+)
+from hydropump_ctrl.ident.paper import initial_levels, step_seed  # noqa: E402
 
 from common import emit, median_time, row  # noqa: E402
 
@@ -31,8 +37,8 @@ TRUTH = synthetic.Truth(100.0, 0.100, 0.055)
 
 def naive_fit(u, y, dt):
     """Nelder-Mead on eq. 20, lsim per evaluation (the baseline of the issue)."""
-    seed = fopdt.step_seed(u, y, dt)
-    u_ref, y_ref = fopdt.initial_levels(u, y, dt, seed[2])
+    seed = step_seed(u, y, dt)
+    u_ref, y_ref = initial_levels(u, y, dt, seed[2])
     t = np.arange(u.size) * dt
     v, z = u - u_ref, y - y_ref
 
@@ -62,25 +68,25 @@ def main():
     recs, _ = synthetic.paper_set(seed=5)
     params = load_default_params()
     data = [normalise(r, params) for r in recs]
-    fopdt.fit_recordings(recs[:1], joint=False)       # warm caches outside the timing
+    fit_recordings(recs[:1], joint=False)       # warm caches outside the timing
 
-    t_fit, runs = median_time(lambda: fopdt.fit_recordings(recs, params=params), repeat=5)
-    ident = fopdt.fit_recordings(recs, params=params)
+    t_fit, runs = median_time(lambda: fit_recordings(recs, params=params), repeat=5)
+    ident = fit_recordings(recs, params=params)
     print(format_table(ident))
     print(f'robust fit of nine records: median {t_fit:.2f} s of {len(runs)} runs')
 
     with tempfile.TemporaryDirectory() as tmp:
         def whole():
-            res = fopdt.fit_recordings(recs, params=params)
+            res = fit_recordings(recs, params=params)
             format_table(res)
             write_report(res, tmp, params=params)
         t_whole, _ = median_time(whole, repeat=3)
     print(f'fit + report (JSON, Markdown, Fig. 5 and 6 of all nine sets): median '
           f'{t_whole:.2f} s of 3 runs')
 
-    t_paper, _ = median_time(lambda: fopdt.fit_recordings(recs, method='paper',
-                                                          params=params), repeat=5)
-    paper = fopdt.fit_recordings(recs, method='paper', params=params)
+    t_paper, _ = median_time(lambda: fit_recordings(recs, method='paper', params=params),
+                             repeat=5)
+    paper = fit_recordings(recs, method='paper', params=params)
 
     base_times, base_est, base_nfev = [], [], []
     for u, y in data:

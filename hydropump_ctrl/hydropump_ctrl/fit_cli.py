@@ -70,25 +70,17 @@ def _warn(msg: str) -> None:
 
 def cmd_fit(args) -> int:
     """Run the ``fit`` sub-command; user errors propagate as one-line exceptions."""
-    from tqdm import tqdm
-
     from hydropump_sim.params import default_params_path, load_params
 
-    from . import fopdt
-    from .fit_report import format_table, to_json, write_report
-    from .recording import BagError, read_recording
+    from .ident import fit_recordings, format_table, read_recordings, to_json, write_report
 
     t0 = time.perf_counter()
     params = load_params(args.params or default_params_path())
     recs = []
-    for path in tqdm(args.bags, desc='read', unit='bag', leave=False,
-                     disable=None if args.progress is None else not args.progress):
-        rec = read_recording(path, current_topic=args.current_topic,
-                             flow_topic=args.flow_topic, dt=args.dt)
+    for path, rec in zip(args.bags, read_recordings(
+            args.bags, current_topic=args.current_topic, flow_topic=args.flow_topic,
+            dt=args.dt, allow_truncated=args.allow_truncated, progress=args.progress)):
         if rec.truncated:
-            if not args.allow_truncated:
-                raise BagError(f'{path}: the bag is truncated ({rec.truncation}); '
-                               'use --allow-truncated to fit its readable part')
             _warn(f'{path}: truncated bag, fitting its readable part ({rec.truncation})')
         for note in rec.notes:
             _warn(f'{path}: {note}')
@@ -100,7 +92,7 @@ def cmd_fit(args) -> int:
     kw = {}
     if args.no_dither:
         kw['dither'] = None
-    ident = fopdt.fit_recordings(
+    ident = fit_recordings(
         recs, method=args.method, params=params, start=args.start, td_bounds=args.td_bounds,
         tau_bounds=args.tau_bounds, joint=False if args.no_joint else None,
         progress=args.progress, allow_flow_filter=args.allow_flow_filter, **kw)

@@ -9,9 +9,9 @@ import sys
 import numpy as np
 import pytest
 
-from hydropump_ctrl import synthetic as syn
 from hydropump_ctrl.cli import main
-from hydropump_ctrl.recording import recording_to_bag, write_bag
+from hydropump_ctrl.ident import recording_to_bag, write_bag
+from hydropump_ctrl.ident import synthetic as syn
 
 TRUTH = syn.Truth(100.0, 0.100, 0.055)
 HYDROPUMP = Path(sys.executable).parent / 'hydropump'

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hydropump_ctrl import fopdt as fp
-from hydropump_ctrl.recording import Recording, recording_to_bag
+from hydropump_ctrl import ident as fp
+from hydropump_ctrl.ident import Recording, recording_to_bag
 from hydropump_sim import simulate
 from hydropump_sim.scaling import current_for_displacement
 from hydropump_sim.sensors import apply_profile, load_profile, profile_from_dict
@@ -21,6 +21,10 @@ BENCH_YAML = ROOT / 'config' / 'bench.yaml'
 NOISE = {'noise_std': 5.625e-6, 'quantum': 2.8125e-6}      # 0.5 % and 0.25 % of V_p f_p
 
 
+def _record(t, current, flow, **kw):
+    return Recording(t, {'solenoid_current': current, 'line_flow': flow}, **kw)
+
+
 def _up_step(params, t_step, duration=3.0):
     lo, hi = current_for_displacement(params, [0.4, 0.6])
     return simulate(params, duration, lambda t: np.where(np.asarray(t) >= t_step, hi, lo))
@@ -28,8 +32,7 @@ def _up_step(params, t_step, duration=3.0):
 
 def test_clean_up_step_matches_the_reference_fopdt_fit(params):
     res = _up_step(params, 1.0)
-    fit = fp.fit_recording(Recording(t=res.t, current=res.I_s, flow=res.q_l, name='clean'),
-                          params=params)
+    fit = fp.fit_recording(_record(res.t, res.I_s, res.q_l, name='clean'), params=params)
     assert fit.G0 == pytest.approx(99.95, abs=0.1)
     assert fit.tau == pytest.approx(0.10041, abs=5e-4)
     assert 0.0 <= fit.td < 1e-3
@@ -46,7 +49,7 @@ def test_noisy_up_steps_give_the_papers_figures(params):
         res = _up_step(params, t_step)
         prof = profile_from_dict({'sensors': {'seed': 40 + i, 'line_flow': NOISE}})
         flow = apply_profile(prof, res.t, {'line_flow': res.q_l})['line_flow']
-        recs.append(Recording(t=res.t, current=res.I_s, flow=flow, name=f'up{i}'))
+        recs.append(_record(res.t, res.I_s, flow, name=f'up{i}'))
     ident = fp.fit_recordings(recs, params=params)
     po = ident.pooled
     assert abs(po.mean['G0'] - 100.0) <= 0.7
@@ -75,12 +78,11 @@ def test_bench_chain_delay_is_recovered_from_a_bag(params, tmp_path):
 
     res = simulate(plant, 11.0, current)
     meas = apply_profile(prof, res.t, {'solenoid_current': res.I_s, 'line_flow': res.q_l})
-    bag = recording_to_bag(Recording(t=res.t, current=meas['solenoid_current'],
-                                     flow=meas['line_flow']), tmp_path / 'bench',
-                           namespace='pump')
+    bag = recording_to_bag(_record(res.t, meas['solenoid_current'], meas['line_flow']),
+                           tmp_path / 'bench', namespace='pump')
     ident = fp.fit_bags([bag], params=params)
     fit = ident.sets[0]
-    ref = fp.fit_recording(Recording(t=res.t, current=res.I_s, flow=res.q_l), params=params)
+    ref = fp.fit_recording(_record(res.t, res.I_s, res.q_l), params=params)
     configured = prof.spec('line_flow').delay
     assert configured == pytest.approx(0.055)
     assert abs((fit.td - ref.td) - configured) <= 1e-3

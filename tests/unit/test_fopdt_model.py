@@ -9,8 +9,10 @@ import math
 import numpy as np
 import pytest
 
-from hydropump_ctrl import fopdt as fp
-from hydropump_ctrl import synthetic as syn
+from hydropump_ctrl import ident as fp
+from hydropump_ctrl.ident import robust
+from hydropump_ctrl.ident import synthetic as syn
+from hydropump_sim.errors import HydropumpError
 
 
 def _staircase(dt, duration=3.0, seed=0):
@@ -61,7 +63,7 @@ def test_window_jacobian_matches_finite_differences():
                         quantum=0.0)
     u, y = (rec.current - 0.3) / 0.4, rec.flow / 1.125e-5
     lines = fp.detect_dither(u, rec.dt)
-    win = fp._Window(u, y, rec.dt, 0.25, lines)
+    win = robust.Window(u, y, rec.dt, 0.25, lines)
     theta = np.r_[98.0, 0.097, 0.0537, 1.0, 0.5, 0.01, -0.02][:win.p]
     _, J = win.model(theta, jac=True)
     for i, h in enumerate((1e-4, 1e-7, 1e-8, 1e-5, 1e-5, 1e-5, 1e-5)[:win.p]):
@@ -76,9 +78,9 @@ def test_delay_profile_equals_the_direct_projection():
     # The FFT and cumulative-sum grid gives the same SSE as a direct least-squares solve.
     rec = syn.make_record(syn.Truth(100.0, 0.1, 0.055), seed=4, duration=4.0, dither=0.0)
     u, y = (rec.current - 0.3) / 0.4, rec.flow / 1.125e-5
-    win = fp._Window(u, y, rec.dt, 0.25)
+    win = robust.Window(u, y, rec.dt, 0.25)
     taus = np.array([0.03, 0.1, 0.4])
-    sse = fp.delay_profile(win, taus, 0, 250)
+    sse = robust.delay_profile(win, taus, 0, 250)
     for i, tau in enumerate(taus):
         for d in (0, 40, 55, 250):
             _, direct = win.project(tau, d * rec.dt)
@@ -125,3 +127,10 @@ def test_bad_arrays_are_refused_with_one_line():
         fp.fit_fopdt(u, y, 1e-3, td_bounds=(0.0, 0.5))
     with pytest.raises(fp.FitError, match='unknown method'):
         fp.fit_fopdt(u, y, 1e-3, method='procest')
+
+
+def test_fit_errors_are_one_line_user_errors():
+    with pytest.raises(fp.FitError) as err:
+        fp.fit_fopdt(np.full(1000, 0.5), np.zeros(1000), 1e-3)
+    assert isinstance(err.value, HydropumpError) and isinstance(err.value, ValueError)
+    assert err.value.lines == [str(err.value)] and '\n' not in str(err.value)

@@ -10,9 +10,9 @@ import math
 import numpy as np
 import pytest
 
-from hydropump_ctrl import fopdt as fp
-from hydropump_ctrl import synthetic as syn
-from hydropump_ctrl.recording import normalise
+from hydropump_ctrl import ident as fp
+from hydropump_ctrl.ident import normalise, Recording
+from hydropump_ctrl.ident import synthetic as syn
 
 TRUTH = syn.Truth(100.0, 0.100, 0.055)
 
@@ -158,6 +158,19 @@ def test_a_filter_on_the_flow_alone_is_refused_or_flagged():
     both = fp.fit_recording(rec.lowpass(20.0))    # the same filter on both: no bias
     assert abs(both.td - TRUTH.td) <= 0.001
     assert 'flow_only_filter' not in both.flags
+
+
+def test_the_fit_uses_the_signals_named_as_current_and_flow():
+    rec = syn.paper_set(seed=5, n=1, duration=8.0)[0][0]
+    rec = Recording(rec.t, {**rec.signals, 'pump_flow': 1.02 * rec.flow}, name=rec.name)
+    base = fp.fit_recording(rec)
+    other = fp.fit_recording(rec, flow='pump_flow')
+    assert other.G0 == pytest.approx(1.02 * base.G0, rel=1e-6)
+    assert other.tau == pytest.approx(base.tau, abs=1e-7)
+    assert other.td == pytest.approx(base.td, abs=1e-7)
+    ident = fp.fit_recordings([rec], flow='pump_flow')
+    assert ident.sets[0].G0 == other.G0
+    assert ident.recordings[0].roles == {'current': 'solenoid_current', 'flow': 'pump_flow'}
 
 
 def test_residual_checks_pass_on_white_noise_and_catch_a_wrong_model():

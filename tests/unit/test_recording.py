@@ -1,10 +1,11 @@
-"""Reading the current and flow of rosbag2 bags (MCAP and sqlite3) into recordings.
+"""Reading rosbag2 bags (MCAP and sqlite3) into recordings of named signals.
 
 Bags are written as the project's recorder writes them (``rosbags``, version 9), as
 ``ros2 bag record`` writes them (an MCAP with zstd chunks from ``mcap-ros2-support`` and a
 Jazzy ``metadata.yaml``), cut short, killed with SIGKILL, and corrupted.
 """
 
+import json
 import os
 from pathlib import Path
 import signal
@@ -15,14 +16,19 @@ import textwrap
 import numpy as np
 import pytest
 
-from hydropump_ctrl.recording import (
+from hydropump_ctrl.ident import (
     BagError,
     list_topics,
     match_topic,
     read_recording,
+    read_recordings,
     Recording,
+    recording_to_bag,
+    SIGNALS,
     write_bag,
 )
+from hydropump_ctrl.ident.bags import typestore
+from hydropump_sim.errors import HydropumpError
 
 F64 = 'std_msgs/msg/Float64'
 PRESSURE = 'sensor_msgs/msg/FluidPressure'
@@ -57,15 +63,23 @@ def _contract_bag(path, storage='mcap', ns='', n=4000):
 def test_recorder_bag_is_read_exactly(tmp_path, storage):
     bag, (t, cur, flow) = _contract_bag(tmp_path / 'bag', storage, ns='pump')
     rec = read_recording(bag)
-    assert rec.topics == {'current': '/pump/solenoid_current', 'flow': '/pump/line_flow'}
-    assert rec.time_source == {'current': 'log', 'flow': 'log'}
+    assert rec.roles == {'current': 'solenoid_current', 'flow': 'line_flow'}
+    names = ['solenoid_current', 'solenoid_current_cmd', 'line_flow', 'pump_flow', 'load_flow',
+             'line_pressure', 'load_pressure']
+    assert rec.topics == {n: f'/pump/{n}' for n in names}
+    assert rec.time_source == {n: 'header' if 'pressure' in n else 'log' for n in names}
     assert rec.dt == pytest.approx(1e-3, rel=1e-9)
     assert rec.t0_ns == int(round(T0 * 1e9))
     np.testing.assert_allclose(rec.t, t - T0, atol=1e-9)
     np.testing.assert_array_equal(rec.current, cur)
     np.testing.assert_array_equal(rec.flow, flow)
     assert not rec.truncated and not rec.notes
-    assert rec.labels['flow'] == 'line flow q_l'
+    assert rec.labels['line_flow'] == 'line flow q_l'
+    # Every contract signal of the bag is decoded once, in SI (pressures as published).
+    np.testing.assert_array_equal(rec['pump_flow'], flow * 1.01)
+    np.testing.assert_array_equal(rec['line_pressure'], 1.5e7 + flow)
+    np.testing.assert_array_equal(rec['solenoid_current_cmd'], np.round(cur, 2))
+    assert rec.units['line_pressure'] == 'Pa (absolute)' and rec.units['load_flow'] == 'm^3/s'
     # The command topic is selectable; 'solenoid_current' never matched it by suffix.
     cmd = read_recording(bag, current_topic='solenoid_current_cmd', flow_topic='pump_flow')
     np.testing.assert_array_equal(cmd.current, np.round(cur, 2))
@@ -79,7 +93,7 @@ def test_header_stamps_are_used_where_present(tmp_path):
                                  '/line_pressure': (PRESSURE, t, 1.5e7 + 1e5 * flow)},
               log_offset_ns=3_000_000)
     rec = read_recording(tmp_path / 'bag', flow_topic='line_pressure')
-    assert rec.time_source == {'current': 'log', 'flow': 'header'}
+    assert rec.time_source == {'solenoid_current': 'log', 'line_pressure': 'header'}
     # The current keeps its (late) log times, the pressure its stamps: the first common
     # instant is the first current message, which pairs with the fourth pressure sample.
     n = rec.t.size
@@ -95,7 +109,7 @@ def test_header_stamps_from_simulation_time_zero(tmp_path):
                                  '/line_pressure': (PRESSURE, t, 1.5e7 + t)},
               log_offset_ns=2_000_000)
     rec = read_recording(tmp_path / 'bag', flow_topic='line_pressure')
-    assert rec.time_source['flow'] == 'header'
+    assert rec.time_source['line_pressure'] == 'header'
     np.testing.assert_array_equal(rec.flow, (1.5e7 + t)[2:])
 
 
@@ -234,8 +248,7 @@ def test_command_published_on_change_is_held(tmp_path):
 def test_compressed_bag(tmp_path):
     from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 
-    from hydropump_ctrl.recording import _typestore
-    ts = _typestore()
+    ts = typestore()
     t, cur, flow = _signals(1000)
     w = Writer(tmp_path / 'z', version=9, storage_plugin=StoragePlugin.MCAP)
     w.set_compression(CompressionMode.MESSAGE, CompressionFormat.ZSTD)
@@ -306,9 +319,10 @@ def test_mcap_cut_short_is_read_up_to_its_last_whole_chunk(tmp_path):
 RECORDER = """
 import sys, time
 import numpy as np
-from hydropump_ctrl.recording import _typestore
+from hydropump_ctrl.ident.bags import typestore
+from hydropump_sim.errors import HydropumpError
 from rosbags.rosbag2 import StoragePlugin, Writer
-ts = _typestore()
+ts = typestore()
 F = ts.types['std_msgs/msg/Float64']
 w = Writer(sys.argv[1], version=9, storage_plugin=StoragePlugin.MCAP)
 w.open()
@@ -360,6 +374,7 @@ def test_broken_inputs_give_one_line_errors(tmp_path):
             read_recording(tmp_path / name)
         msg = str(err.value)
         assert expect in msg and '\n' not in msg, (name, msg)
+        assert isinstance(err.value, HydropumpError) and err.value.lines == [msg]
 
 
 def test_unreadable_metadata_falls_back_to_the_mcap(tmp_path):
@@ -372,14 +387,14 @@ def test_unreadable_metadata_falls_back_to_the_mcap(tmp_path):
 
 def test_saved_recording_round_trip(tmp_path):
     t, cur, flow = _signals(500)
-    rec = Recording(t=t - T0, current=cur, flow=flow, name='r1', source='x',
-                    notes=['a note'], truncated=True, truncation='cut')
+    rec = Recording(t - T0, {'solenoid_current': cur, 'line_flow': flow}, name='r1',
+                    source='x', notes=['a note'], truncated=True, truncation='cut')
     path = rec.save(tmp_path / 'r1.npz')
     back = read_recording(path)
     np.testing.assert_array_equal(back.current, cur)
     np.testing.assert_array_equal(back.t, t - T0)
     assert back.notes == ['a note'] and back.truncated and back.truncation == 'cut'
-    assert back.units == {'t': 's', 'current': 'A', 'flow': 'm^3/s'}
+    assert back.units == {'t': 's', 'solenoid_current': 'A', 'line_flow': 'm^3/s'}
     half = back.decimate(2)
     assert half.dt == pytest.approx(2e-3) and half.t.size == 250
     (tmp_path / 'bad.npz').write_bytes(b'not a zip')
@@ -407,3 +422,163 @@ def test_corrupted_mcap_never_raises_anything_but_a_bag_error(tmp_path):
             outcomes.add('error')
             assert '\n' not in str(exc)
     assert outcomes == {'read', 'error'}    # both kinds of outcome occur, nothing else
+
+
+# ---- named signals ----------------------------------------------------------------------------
+
+JOINTS = 'sensor_msgs/msg/JointState'
+STATE_KEYS = ('reference', 'estimate', 'disturbance', 'command', 'command_desired')
+
+
+def _loop_bag(path, n=2000):
+    """The closed-loop recorder's topics in namespace ``pump``: the simulator's at 1 kHz, the
+    controller's command and state at 200 Hz from its first update at 5 ms (the state's
+    disturbance undefined), and a ``joint_states`` of another namespace."""
+    rng = np.random.default_rng(5)
+    t = T0 + np.arange(n) * 1e-3
+    tc = t[5::5]
+    sig = {'line_flow': 6e-4 + 1e-5 * rng.standard_normal(n),
+           'spool_position': 1e-4 * rng.standard_normal(n),
+           'actuator_position': 0.01 + 1e-3 * rng.standard_normal(n),
+           'line_pressure': 1.5e7 + 1e4 * rng.standard_normal(n),
+           'load_pressure': 1.2e7 + 1e4 * rng.standard_normal(n),
+           'solenoid_current_cmd': 0.46 + 0.08 * (np.arange(tc.size) // 40 % 2)}
+    sig['solenoid_current'] = sig['solenoid_current_cmd'][np.clip(np.arange(n) // 5 - 1, 0,
+                                                                  None)]
+    state = {k: rng.standard_normal(tc.size) for k in STATE_KEYS}
+    state['disturbance'][:] = np.nan
+    write_bag(path, {
+        '/pump/solenoid_current': (F64, t, sig['solenoid_current']),
+        '/pump/solenoid_current_cmd': (F64, tc, sig['solenoid_current_cmd']),
+        '/pump/line_flow': (F64, t, sig['line_flow']),
+        '/pump/line_pressure': (PRESSURE, t, sig['line_pressure']),
+        '/pump/load_pressure': (PRESSURE, t, sig['load_pressure']),
+        '/pump/joint_states': (JOINTS, t, {'spool': sig['spool_position'],
+                                           'swash_plate_actuator': sig['actuator_position']}),
+        '/pump/controller/state': (JOINTS, tc, state),
+        '/other/joint_states': (JOINTS, t, {'spool': 0 * t}),
+    })
+    return t, tc, sig, state
+
+
+def test_a_bag_is_decoded_once_into_every_contract_signal(tmp_path):
+    t, tc, sig, state = _loop_bag(tmp_path / 'bag')
+    rec = read_recording(tmp_path / 'bag')
+    assert set(rec.signals) == {*sig, *(f'controller_{k}' for k in STATE_KEYS)}
+    assert not rec.notes
+    # Sampled signals stamped on the grid are taken as they are, positions by entry name,
+    # the namespace of the flow first (the other joint_states is not taken).
+    for name in ('line_flow', 'spool_position', 'actuator_position', 'line_pressure',
+                 'load_pressure', 'solenoid_current'):
+        np.testing.assert_array_equal(rec[name], sig[name], err_msg=name)
+    assert rec.topics['spool_position'] == '/pump/joint_states'
+    assert rec.topics['controller_reference'] == '/pump/controller/state'
+    # Held signals: the last value stamped up to half a period after each grid time, NaN
+    # before the first message.
+    grid = rec.t + rec.t0_ns * 1e-9
+    k = np.searchsorted(tc, grid + 5e-4, side='right') - 1
+    for name, v in (('solenoid_current_cmd', sig['solenoid_current_cmd']),
+                    ('controller_command', state['command'])):
+        expect = np.where(k >= 0, v[np.clip(k, 0, None)], np.nan)
+        np.testing.assert_array_equal(rec[name], expect, err_msg=name)
+    assert np.isnan(rec['solenoid_current_cmd'][:5]).all()
+    assert np.isnan(rec['controller_disturbance']).all()     # kept, not an error
+    # Units and labels are the contract's; pressures stay absolute, as published.
+    for name in rec.signals:
+        assert rec.units[name] == SIGNALS[name].unit and rec.labels[name] == SIGNALS[name].label
+    assert rec.units['line_pressure'] == 'Pa (absolute)'
+    assert rec.units['controller_command'] == 'A' and rec.units['t'] == 's'
+    assert rec.time_source['spool_position'] == 'header'
+
+
+def test_signals_can_be_chosen_and_a_chosen_one_must_be_there(tmp_path):
+    _loop_bag(tmp_path / 'loop')
+    only = read_recording(tmp_path / 'loop', signals=['load_pressure'])
+    assert set(only.signals) == {'solenoid_current', 'line_flow', 'load_pressure'}
+    assert set(read_recording(tmp_path / 'loop', signals=None).signals) == {
+        'solenoid_current', 'line_flow'}
+    bag, _ = _contract_bag(tmp_path / 'plain')
+    with pytest.raises(BagError, match="no topic 'joint_states'"):
+        read_recording(bag, signals=['spool_position'])
+    with pytest.raises(BagError, match="unknown signal 'x_a'"):
+        read_recording(bag, signals=['x_a'])
+
+
+def test_an_undecodable_signal_is_left_out_with_a_note(tmp_path):
+    t, cur, flow = _signals(1000)
+    write_bag(tmp_path / 'bag', {'/solenoid_current': (F64, t, cur),
+                                 '/line_flow': (F64, t, flow),
+                                 '/joint_states': (F64, t, flow)})
+    rec = read_recording(tmp_path / 'bag')
+    assert 'spool_position' not in rec and 'actuator_position' not in rec
+    assert any('spool_position, actuator_position left out' in n and 'JointState' in n
+               for n in rec.notes)
+    with pytest.raises(BagError, match='is not a sensor_msgs/msg/JointState'):
+        read_recording(tmp_path / 'bag', signals=['spool_position'])
+
+
+def test_every_signal_survives_npz_and_bag_round_trips(tmp_path):
+    _loop_bag(tmp_path / 'bag')
+    rec = read_recording(tmp_path / 'bag')
+    back = Recording.load(rec.save(tmp_path / 'rec.npz'))
+    again = read_recording(recording_to_bag(rec, tmp_path / 'again', namespace='pump',
+                                            start_s=T0))
+    for other in (back, again):
+        assert set(other.signals) == set(rec.signals) and other.roles == rec.roles
+        for name, v in rec.signals.items():
+            np.testing.assert_array_equal(other[name], v, err_msg=name)
+        assert other.units == rec.units and other.topics == rec.topics
+    assert back.t0_ns == rec.t0_ns and back.time_source == rec.time_source
+
+
+def test_roles_pick_the_signals_that_act_as_current_and_flow(tmp_path):
+    _loop_bag(tmp_path / 'bag')
+    rec = read_recording(tmp_path / 'bag')
+    cmd = rec.with_roles(current='solenoid_current_cmd')
+    assert cmd.roles == {'current': 'solenoid_current_cmd', 'flow': 'line_flow'}
+    assert cmd.current is cmd['solenoid_current_cmd'] and rec.with_roles() is rec
+    with pytest.raises(BagError, match="no signal 'q' to act as the flow"):
+        rec.with_roles(flow='q')
+    # A saved recording takes the roles it is read with, where it has the signals.
+    path = rec.save(tmp_path / 'r.npz')
+    assert read_recording(path, current_topic='/pump/solenoid_current_cmd').roles == cmd.roles
+    # Filters are kept per signal; 'current' and 'flow' name the roles.
+    low = cmd.lowpass(50.0, signals=('current', 'load_pressure'))
+    assert low.filters['solenoid_current_cmd'].startswith('butterworth order 2, 50 Hz')
+    assert low.filters['load_pressure'] and low.filters['line_flow'] is None
+    with pytest.raises(BagError, match="unknown signal 'torque'"):
+        rec.lowpass(50.0, signals=('torque',))
+
+
+def test_read_recordings_refuses_a_truncated_bag_unless_allowed(tmp_path):
+    _long_bag(tmp_path / 'bag')
+    data = (tmp_path / 'bag' / 'bag.mcap').read_bytes()
+    (tmp_path / 'cut').mkdir()
+    (tmp_path / 'cut' / 'bag.mcap').write_bytes(data[:int(0.8 * len(data))])
+    good, _ = _contract_bag(tmp_path / 'good')
+    with pytest.raises(BagError) as err:
+        read_recordings([good, tmp_path / 'cut'])
+    assert 'cut: the bag is truncated' in str(err.value) and '\n' not in str(err.value)
+    recs = read_recordings([good, tmp_path / 'cut'], allow_truncated=True, signals=None)
+    assert [r.truncated for r in recs] == [False, True]
+    assert [r.name for r in read_recordings(good)] == ['good']
+
+
+def test_a_saved_current_and_flow_recording_of_earlier_versions_loads(tmp_path):
+    t, cur, flow = _signals(300)
+    meta = {'name': 'old', 'source': 'b', 'topics': {'current': '/solenoid_current_cmd',
+                                                     'flow': '/p/line_flow'},
+            'labels': {'current': 'I', 'flow': 'q'}, 'time_source': {'current': 'log',
+                                                                     'flow': 'header'},
+            'truncated': False, 'truncation': '', 'notes': [], 't0_ns': 5,
+            'filters': {'current': None, 'flow': 'x'}, 'units': {'t': 's'}}
+    np.savez(tmp_path / 'old.npz', t=t - T0, current=cur, flow=flow,
+             meta=np.array(json.dumps(meta)))
+    rec = read_recording(tmp_path / 'old.npz')
+    assert rec.roles == {'current': 'solenoid_current_cmd', 'flow': 'line_flow'}
+    np.testing.assert_array_equal(rec.current, cur)
+    np.testing.assert_array_equal(rec.flow, flow)
+    assert rec.topics == {'solenoid_current_cmd': '/solenoid_current_cmd',
+                          'line_flow': '/p/line_flow'}
+    assert rec.filters == {'solenoid_current_cmd': None, 'line_flow': 'x'}
+    assert rec.units['solenoid_current_cmd'] == 'A' and rec.t0_ns == 5

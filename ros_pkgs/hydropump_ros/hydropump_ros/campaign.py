@@ -259,21 +259,25 @@ def run_experiment(orch: Orchestrator, exp: Experiment, run_dir: Path, bag_dir: 
 
 def plant_truth(params, profile, bags, ident) -> dict:
     """The plant's own eq. 19 under the bench conditions: each experiment replayed on the fine
-    model with the commanded current, dither on, no sensor delay or noise, and fitted."""
-    from hydropump_ctrl.fopdt import fit_recordings
-    from hydropump_ctrl.recording import read_recording, Recording
+    model with the commanded current, dither on, no sensor delay or noise, and fitted.
+
+    The commanded current comes from the recordings the fit read (``ident.recordings``, one
+    per bag): the bags are decoded once."""
+    from hydropump_ctrl.ident import fit_recordings, Recording
     from hydropump_sim import simulate
     plant = params.replace(profile.plant_overrides or {})
     recs = []
-    for bag in bags:
-        cmd = read_recording(bag, current_topic='solenoid_current_cmd')
-        t, u = cmd.t, cmd.current
+    for bag, rec in zip(bags, ident.recordings):
+        # The command starts with the controller's first update.
+        ok = np.isfinite(rec['solenoid_current_cmd'])
+        t, u = rec.t[ok] - rec.t[ok][0], rec['solenoid_current_cmd'][ok]
 
         def held(tt, t=t, u=u):
             return u[np.clip(np.searchsorted(t, tt, side='right') - 1, 0, u.size - 1)]
 
         res = simulate(plant, float(t[-1]) + 1e-3, held, dt_out=1e-3)
-        recs.append(Recording(res.t, held(res.t), res.q_l, name=f'{Path(bag).name} twin'))
+        recs.append(Recording(res.t, {'solenoid_current': held(res.t), 'line_flow': res.q_l},
+                              name=f'{Path(bag).name} twin'))
     twin = fit_recordings(recs, params=params, joint=False)
     return {'G0': twin.G0, 'tau': twin.tau, 'td_plant': twin.td,
             'td_configured': profile.spec('line_flow').delay,
@@ -291,30 +295,22 @@ def _nominal_tau(params) -> float:
 
 
 def _bag_arrays(bag: Path):
-    """Times and values of the closed-loop signals from a bag (independent of the fitter)."""
-    from rosbags.rosbag2 import Reader
-    from rosbags.typesys import get_typestore, Stores
-    store = get_typestore(Stores.ROS2_JAZZY)
-    out = {'js': ([], []), 'lp': ([], []), 'up': ([], []), 'cmd': ([], []), 'state': ([], [])}
-    with Reader(bag) as r:
-        for conn, t, raw in r.messages():
-            m = store.deserialize_cdr(raw, conn.msgtype)
-            topic = conn.topic.rsplit('/', 1)[-1]
-            key = {'joint_states': 'js', 'line_pressure': 'lp', 'load_pressure': 'up',
-                   'solenoid_current_cmd': 'cmd', 'state': 'state'}.get(topic)
-            if key is None:
-                continue
-            out[key][0].append(t * 1e-9)
-            out[key][1].append(m.position[1] if key == 'js' else m.fluid_pressure
-                               if key in ('lp', 'up') else m.data if key == 'cmd'
-                               else m.position[0])
-    return {k: (np.array(a), np.array(b)) for k, (a, b) in out.items()}
+    """Times [s of simulation] and values of the closed-loop signals of a bag, on the grid of
+    its recording."""
+    from hydropump_ctrl.ident import read_recording
+    rec = read_recording(bag)
+    t = rec.t + rec.t0_ns * 1e-9
+    keys = {'js': 'actuator_position', 'lp': 'line_pressure', 'up': 'load_pressure',
+            'cmd': 'solenoid_current_cmd', 'state': 'controller_reference'}
+    return {k: (t, rec[sig]) for k, sig in keys.items() if sig in rec}
 
 
 def _average(t, x, width: float):
+    """Centred moving average over ``width`` seconds, where a whole window fits."""
+    from hydropump_sim.metrics import moving_average
     k = max(1, int(round(width / float(np.median(np.diff(t))))))
-    y = np.convolve(x, np.ones(k) / k, mode='valid')
-    return t[(k - 1) // 2:(k - 1) // 2 + y.size], y
+    y = moving_average(x, k, edges='valid')
+    return t[k // 2:k // 2 + y.size], y
 
 
 def loop_figures(params, exp: Experiment, bag: Path, t_step: float = 0.5) -> dict:
@@ -576,8 +572,7 @@ def run(args) -> int:
     # 2. Fitting.
     t0 = time.perf_counter()
     _progress('[2/5 fitting] eq. 19 on the identification bags ...')
-    from hydropump_ctrl.fit_report import format_table, write_report
-    from hydropump_ctrl.fopdt import fit_bags
+    from hydropump_ctrl.ident import fit_bags, format_table, write_report
     ident = fit_bags(bags, params=params, progress=None)
     fit_paths = write_report(ident, run_dir / 'identification', params=params)
     truth = plant_truth(params, profile, bags, ident)

@@ -6,6 +6,9 @@ Fig. 6 the estimation error ``e_e = q_l,m - q_l,i``. Signals are normalised as i
 The simplified-model flow comes from the plant library (``hydropump_sim.simulate``, eq. 10 as
 printed), driven by the measured current delayed by the identified ``t_d``: the bench delay is
 not part of the plant (model_notes I15).
+
+Owns the JSON result (schema ``hydropump-fit/1``, :func:`to_dict`), the text and Markdown
+tables, the figures and the report folder (:func:`write_report`).
 """
 
 from __future__ import annotations
@@ -17,7 +20,10 @@ from typing import Any
 
 import numpy as np
 
-from .fopdt import FLAG_TEXT, FopdtFit, Identification, PAPER, PARAMS
+from .diagnostics import FLAG_TEXT, FopdtFit
+from .model import PAPER, PARAMS
+from .pooling import Identification
+from .signals import find_steps, load_default_params, smooth
 
 SCHEMA = 'hydropump-fit/1'
 UNITS = {'G0': '% of V_p f_p per unit current fraction', 'tau': 's', 'td': 's',
@@ -41,7 +47,8 @@ def set_dict(fit: FopdtFit, rec=None) -> dict[str, Any]:
     """One data set's entry of the JSON result."""
     d: dict[str, Any] = {'name': fit.name}
     if rec is not None:
-        d.update(bag=rec.source, topics=dict(rec.topics), truncated=bool(rec.truncated),
+        topics = {role: rec.topics.get(sig, '') for role, sig in rec.roles.items()}
+        d.update(bag=rec.source, topics=topics, truncated=bool(rec.truncated),
                  notes=list(rec.notes) + ([rec.truncation] if rec.truncation else []))
     d.update(method=fit.method, n_samples=fit.n, dt=_num(fit.dt))
     for p in PARAMS:
@@ -232,12 +239,6 @@ def simplified_flow(rec, fit: FopdtFit, params, until: float | None = None
     return out
 
 
-def _display(x: np.ndarray, dt: float) -> np.ndarray:
-    """Dither taken out for display, as the paper filters its plotted signals."""
-    from .fopdt import _smooth_width, moving_average
-    return moving_average(x, _smooth_width(dt))
-
-
 # Points per plotted line: enough for a 800-pixel-wide figure, and fast to render.
 MAX_POINTS = 2500
 
@@ -261,8 +262,7 @@ def _envelope(t: np.ndarray, x: np.ndarray, n: int = MAX_POINTS):
 
 def _zoom(fit: FopdtFit) -> tuple[float, float]:
     """Time span around the largest up-step of the current (the zone the paper fits)."""
-    from .fopdt import _steps
-    idx, size = _steps(fit.u, fit.dt)
+    idx, size = find_steps(fit.u, fit.dt)
     if not idx.size:
         return float(fit.t[0]), float(fit.t[-1])
     k = int(idx[int(np.argmax(size))])
@@ -270,10 +270,22 @@ def _zoom(fit: FopdtFit) -> tuple[float, float]:
     return float(t0 - 0.3 * (fit.tau + fit.td) - 0.05), float(t0 + 5 * fit.tau + fit.td)
 
 
-def _figure(rows: int, height: float):
+def _pyplot():
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
+    return plt
+
+
+def _save(plt, fig, path, dpi: int) -> Path:
+    path = Path(path)
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    return path
+
+
+def _figure(rows: int, height: float):
+    plt = _pyplot()
     fig, ax = plt.subplots(rows, 1, figsize=(8, height), squeeze=False)
     fig.subplots_adjust(left=0.09, right=0.98, top=0.94, bottom=0.08, hspace=0.32)
     return plt, fig, ax[:, 0]
@@ -286,36 +298,19 @@ def plot_fig5(fit: FopdtFit, path, simplified: np.ndarray | None = None) -> Path
     the dither averaged out (20 ms centred mean), as the paper shows them filtered.
     """
     plt, fig, axes = _figure(2, 6.4)
-    cur = _display(100.0 * fit.u, fit.dt)
-    meas = _display(fit.y, fit.dt)
-    model = _display(fit.y_hat, fit.dt)
-    simp = None if simplified is None else _display(simplified, fit.dt)
+    label = (f'identified: G0={fit.G0:.1f}, tau={1e3 * fit.tau:.1f} ms, '
+             f't_d={1e3 * fit.td:.1f} ms')
     for ax, zoom in zip(axes, (False, True)):
         sel = np.ones(fit.t.size, bool)
         if zoom:
             lo, hi = _zoom(fit)
             sel = (fit.t >= lo) & (fit.t <= hi)
-        series = [fit.t[sel], cur[sel], meas[sel], model[sel]]
-        if simp is not None:
-            series.append(simp[sel])
-        t, c, m, yh, *rest = _thin(*series)
-        ax.plot(t, c, '-.', color='0.45', lw=0.9, label='measured current [% of range]')
-        ax.plot(t, m, 'k-', lw=1.0, label='measured flow [% of V_p f_p]')
-        ax.plot(t, yh, 'C3--', lw=1.2,
-                label=f'identified: G0={fit.G0:.1f}, tau={1e3 * fit.tau:.1f} ms, '
-                      f't_d={1e3 * fit.td:.1f} ms')
-        if rest:
-            ax.plot(t, rest[0], 'C0:', lw=1.5,
-                    label='simplified model (Fig. 4), input delayed by t_d')
+        _fig5_lines(ax, fit, sel, simplified, model_label=label)
         ax.set_ylabel('normalised [%]')
-        ax.grid(True, alpha=0.3)
     axes[0].set_title(f'{fit.name}: pump responses, measured and identified ({fit.method})')
     axes[0].legend(fontsize=7, loc='best')
     axes[1].set_xlabel('time [s] (bottom: the largest up-step; dither averaged for display)')
-    path = Path(path)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path, 100)
 
 
 def plot_fig6(fit: FopdtFit, path) -> Path:
@@ -339,17 +334,12 @@ def plot_fig6(fit: FopdtFit, path) -> Path:
     ax[1].set_xlabel('lag [samples]')
     ax[1].legend(fontsize=7)
     ax[1].grid(True, alpha=0.3)
-    path = Path(path)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path, 100)
 
 
 def _grid(n: int, top: bool):
     """Figure with an optional full-width top panel and ``n`` panels in up to 3 columns."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    plt = _pyplot()
     cols = min(3, n)
     rows = int(math.ceil(n / cols))
     extra = 1 if top else 0
@@ -362,19 +352,20 @@ def _grid(n: int, top: bool):
     return plt, fig, head, axes
 
 
-def _fig5_lines(ax, fit, sel, simplified, legend: bool):
-    cur = _display(100.0 * fit.u, fit.dt)
-    meas = _display(fit.y, fit.dt)
-    model = _display(fit.y_hat, fit.dt)
-    series = [fit.t[sel], cur[sel], meas[sel], model[sel]]
+def _fig5_lines(ax, fit: FopdtFit, sel: np.ndarray, simplified: np.ndarray | None, *,
+                legend: bool = False, model_label: str = 'identified model (eq. 19)'):
+    """The lines of Fig. 5 on the samples ``sel``, the measured ones with the dither averaged
+    out."""
+    series = [fit.t[sel]] + [smooth(x, fit.dt)[sel] for x in (100.0 * fit.u, fit.y, fit.y_hat)]
     if simplified is not None:
-        series.append(_display(simplified, fit.dt)[sel])
+        series.append(smooth(simplified, fit.dt)[sel])
     t, c, m, yh, *rest = _thin(*series)
     ax.plot(t, c, '-.', color='0.45', lw=0.9, label='measured current [% of range]')
     ax.plot(t, m, 'k-', lw=1.0, label='measured flow [% of V_p f_p]')
-    ax.plot(t, yh, 'C3--', lw=1.2, label='identified model (eq. 19)')
+    ax.plot(t, yh, 'C3--', lw=1.2, label=model_label)
     if rest:
-        ax.plot(t, rest[0], 'C0:', lw=1.5, label='simplified model (Fig. 4), delayed by t_d')
+        ax.plot(t, rest[0], 'C0:', lw=1.5, label='simplified model (Fig. 4), input delayed '
+                                                 'by t_d')
     ax.grid(True, alpha=0.3)
     if legend:
         ax.legend(fontsize=7, loc='best')
@@ -389,7 +380,7 @@ def plot_fig5_all(fits, path, simplified=None) -> Path:
     simplified = simplified or [None] * len(fits)
     plt, fig, head, axes = _grid(len(fits), True)
     f0 = fits[0]
-    _fig5_lines(head, f0, np.ones(f0.t.size, bool), simplified[0], True)
+    _fig5_lines(head, f0, np.ones(f0.t.size, bool), simplified[0], legend=True)
     head.set_title(f'Pump responses, measured and identified ({f0.method}): {f0.name} '
                    f'(G0={f0.G0:.1f}, tau={1e3 * f0.tau:.1f} ms, t_d={1e3 * f0.td:.1f} ms)',
                    fontsize=9)
@@ -397,15 +388,12 @@ def plot_fig5_all(fits, path, simplified=None) -> Path:
     head.set_ylabel('normalised [%]', fontsize=8)
     for ax, fit, simp in zip(axes, fits, simplified):
         lo, hi = _zoom(fit)
-        _fig5_lines(ax, fit, (fit.t >= lo) & (fit.t <= hi), simp, False)
+        _fig5_lines(ax, fit, (fit.t >= lo) & (fit.t <= hi), simp)
         ax.set_title(f'{fit.name}: G0 {fit.G0:.1f}, tau {1e3 * fit.tau:.1f}, '
                      f't_d {1e3 * fit.td:.1f} ms', fontsize=8)
         ax.tick_params(labelsize=7)
         ax.locator_params(nbins=4)
-    path = Path(path)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path, 90)
 
 
 def plot_fig6_all(fits, path) -> Path:
@@ -420,10 +408,7 @@ def plot_fig6_all(fits, path) -> Path:
         ax.locator_params(nbins=4)
         ax.grid(True, alpha=0.3)
     axes[0].set_ylabel('q_l,m - q_l,i [%]', fontsize=8)
-    path = Path(path)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path, 90)
 
 
 def _safe(name: str) -> str:
@@ -439,7 +424,6 @@ def write_report(ident: Identification, out_dir, *, params=None, plots: bool = T
     set's estimation error); with ``per_set`` also ``fig5_<set>.png`` and
     ``fig6_<set>.png`` (whole record, up-step, error with its correlation tests).
     """
-    from .recording import load_default_params
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = {'json': out / 'result.json', 'markdown': out / 'report.md'}

@@ -8,7 +8,9 @@ sinusoidal response. The measured flow gets white noise and quantisation; steps 
 sample grid, as a digitally commanded current does.
 
 Amplitudes are in the paper's units (current fraction of the 0..100 % displacement range,
-flow in % of ``V_p f_p``) and the recordings in SI, through ``current_range`` and ``Q_max``.
+flow in % of ``V_p f_p``) and the recordings in SI, through ``current_range`` and ``Q_max``:
+a ``solenoid_current`` [A] and a ``line_flow`` [m^3/s]. Test and benchmark data only; the fit
+never imports this module.
 """
 
 from __future__ import annotations
@@ -90,7 +92,7 @@ def make_record(truth: Truth, *, seed: int, duration: float = 20.0, dt: float = 
                 noise: float = 0.5, quantum: float = 0.25, dither: float = 0.03,
                 dither_freq: float = 150.0, steps=None, name: str = '',
                 current_range=CURRENT_RANGE, Q_max: float = Q_MAX, **stair) -> Recording:
-    """One synthetic record as a :class:`~hydropump_ctrl.recording.Recording` (SI).
+    """One synthetic record as a :class:`~.recording.Recording` (SI).
 
     Parameters
     ----------
@@ -119,11 +121,11 @@ def make_record(truth: Truth, *, seed: int, duration: float = 20.0, dt: float = 
     if quantum:
         y = quantum * np.round(y / quantum)
     lo, hi = current_range
-    return Recording(t=t, current=lo + (hi - lo) * u, flow=Q_max * y / 100.0,
+    return Recording(t, {'solenoid_current': lo + (hi - lo) * u, 'line_flow': Q_max * y / 100.0},
                      name=name or f'synthetic-{seed}',
-                     labels={'current': 'solenoid current I_s (synthetic)',
-                             'flow': 'line flow q_l (synthetic)'},
-                     topics={'current': 'synthetic', 'flow': 'synthetic'})
+                     labels={'solenoid_current': 'solenoid current I_s (synthetic)',
+                             'line_flow': 'line flow q_l (synthetic)'},
+                     topics={'solenoid_current': 'synthetic', 'line_flow': 'synthetic'})
 
 
 def paper_set(*, seed: int = 5, n: int = 9, spread: bool = False, truth: Truth | None = None,

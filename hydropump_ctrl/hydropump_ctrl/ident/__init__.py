@@ -1,0 +1,42 @@
+"""Identification of the current-to-flow path (section V of the paper, eqs. 19-20).
+
+The FOPDT model ``G(s) = G0 / (1 + tau s) exp(-s t_d)`` is fitted to recordings of the solenoid
+current and the line flow, by the paper's procedure or by a robust method; several data sets
+are pooled as the paper does and fitted jointly. Details and the JSON schema:
+``docs/identification.md``.
+
+Modules, each building only on those above it:
+
+- :mod:`.errors` - :class:`BagError`, :class:`FitError`;
+- :mod:`.model` - eq. 19 and its exact sampled form;
+- :mod:`.signals` - the paper's units, data checks, bounds, dither lines, steps;
+- :mod:`.diagnostics` - residual tests, covariance, flags, :class:`FopdtFit`;
+- :mod:`.robust`, :mod:`.paper` - the two methods;
+- :mod:`.fit` - one record: :func:`fit_fopdt` (arrays), :func:`fit_recording`;
+- :mod:`.bags` - rosbag2 storage (read raw, write);
+- :mod:`.recording` - :class:`Recording`, bags decoded into named SI signals, ``.npz``;
+- :mod:`.pooling` - several sets: :func:`fit_recordings`, :func:`fit_bags`, the joint fit;
+- :mod:`.report` - tables, JSON, Markdown, Fig. 5 and 6;
+- :mod:`.synthetic` - closed-form test data with a known truth (not imported here).
+
+Pure Python: nothing here imports ROS.
+"""
+
+from .bags import list_topics, match_topic, write_bag
+from .diagnostics import FLAG_TEXT, FopdtFit
+from .errors import BagError, FitError
+from .fit import fit_fopdt, fit_recording, METHODS
+from .model import coefficients, fopdt_response, PAPER, PARAMS
+from .pooling import fit_bags, fit_joint, fit_recordings, Identification, pool, Pooled
+from .recording import read_recording, read_recordings, Recording, recording_to_bag, SIGNALS
+from .report import format_table, to_dict, to_json, write_report
+from .signals import detect_dither, Dither, load_default_params, normalise
+
+__all__ = [
+    'BagError', 'Dither', 'FLAG_TEXT', 'FitError', 'FopdtFit', 'Identification', 'METHODS',
+    'PAPER', 'PARAMS', 'Pooled', 'Recording', 'SIGNALS', 'coefficients', 'detect_dither',
+    'fit_bags', 'fit_fopdt', 'fit_joint', 'fit_recording', 'fit_recordings', 'fopdt_response',
+    'format_table', 'list_topics', 'load_default_params', 'match_topic', 'normalise', 'pool',
+    'read_recording', 'read_recordings', 'recording_to_bag', 'to_dict', 'to_json',
+    'write_bag', 'write_report',
+]

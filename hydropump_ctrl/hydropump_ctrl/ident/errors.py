@@ -1,0 +1,17 @@
+"""The two user errors of identification: a bag that cannot be read, data that cannot be fitted.
+
+Both are :class:`~hydropump_sim.errors.HydropumpError` (one line each, shown after ``error:``
+by the command line) and ``ValueError`` (bad input values, which is what callers catch).
+"""
+
+from __future__ import annotations
+
+from hydropump_sim.errors import HydropumpError
+
+
+class BagError(HydropumpError, ValueError):
+    """A bag or saved recording that cannot be read as asked."""
+
+
+class FitError(HydropumpError, ValueError):
+    """Data that cannot be identified (no excitation, NaNs, too short, bad options)."""
