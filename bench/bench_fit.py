@@ -1,4 +1,4 @@
-"""Identification speed and accuracy on the issue's nine-record set (section V, eq. 19-20).
+"""Identification speed and accuracy on the nine-record synthetic set (section V, eq. 19-20).
 
 Nine synthetic 20 s records at 1 kHz (G0 100, tau 100 ms, t_d 55 ms; noise 0.5 % FS,
 quantisation 0.25 % FS, 3 % dither at 150 Hz, staircases from a non-zero steady state),
@@ -36,7 +36,7 @@ TRUTH = synthetic.Truth(100.0, 0.100, 0.055)
 
 
 def naive_fit(u, y, dt):
-    """Nelder-Mead on eq. 20, lsim per evaluation (the baseline of the issue)."""
+    """Nelder-Mead on eq. 20, lsim per evaluation (the naive baseline)."""
     seed = step_seed(u, y, dt)
     u_ref, y_ref = initial_levels(u, y, dt, seed[2])
     t = np.arange(u.size) * dt

@@ -1,5 +1,5 @@
 """The main job, shortened: real nodes, a three-experiment identification campaign, the EMC
-closed loop, the fit, the report (issue 6's end-to-end test)."""
+closed loop, the fit, the report (the end-to-end test of the demo)."""
 
 import json
 import os
@@ -25,7 +25,7 @@ def demo(tmp_path_factory):
 def test_identification_recovers_the_plant(demo):
     """Bags from the real simulator with the bench profile: the fit finds the configured
     55 ms delay (beyond the plant's own apparent delay under dither) within 1 ms, and the
-    plant's time constant within 2 ms (issue 5's bench row)."""
+    plant's time constant within 2 ms (the bench row of docs/identification.md)."""
     _, _, s = demo
     ident, plant = s['identification'], s['plant']
     assert ident['sets'] == 3
@@ -33,7 +33,7 @@ def test_identification_recovers_the_plant(demo):
     assert abs(ident['tau'] - plant['tau']) <= 2e-3
     assert abs(ident['G0'] - plant['G0']) <= 0.7
     # and the plant truth is what the model says: G0 100 of eq. 11, tau about 100 ms
-    # without dither (model_notes), shortened by the bench dither.
+    # without dither (docs/reference.md), shortened by the bench dither.
     assert abs(plant['G0'] - 100.0) <= 1.0
     assert 0.0995 <= plant['tau_nominal'] <= 0.1015
     assert 0.08 <= plant['tau'] <= plant['tau_nominal']

@@ -1,6 +1,7 @@
 """Identification on data of the plant library's fine model (``hydropump_sim.simulate``).
 
-Truth: model_notes.md ("FOPDT fit to fine q_l: G0 = 99.95, tau = 100.41 ms, t_d = 0.36 ms"),
+Truth: the reference figures of docs/reference.md (FOPDT fit to fine q_l: G0 = 99.95,
+tau = 100.41 ms, t_d = 0.36 ms),
 the paper (G0 = 100 ± 0.7, tau = 100 ± 2 ms) and, for the bench chain, the configured
 sensor delay of config/bench.yaml.
 """

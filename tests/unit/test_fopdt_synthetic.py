@@ -1,4 +1,4 @@
-"""Identification on synthetic records with a known truth (the issue's acceptance table).
+"""Identification on synthetic records with a known truth (the acceptance table).
 
 Records: 20 s at 1 kHz, noise 0.5 % FS, quantisation 0.25 % FS, 3 % dither at 150 Hz,
 staircases from a non-zero steady state (``synthetic.paper_set``). The truth is the
@@ -80,7 +80,8 @@ def test_thirty_random_starts_all_reach_the_delay():
         paper = fp.fit_fopdt(u, y, rec.dt, start=start, method='paper')
         paper_ok += abs(paper.td - TRUTH.td) <= 1e-3
     assert robust_ok == 30
-    # Nelder-Mead on eq. 20 from the same starts gets stuck (the problem the issue names).
+    # Nelder-Mead on eq. 20 from the same starts gets stuck (the weak point the robust method
+    # removes).
     assert paper_ok < 30
 
 

@@ -5,7 +5,7 @@ flow (solid), the identified model's flow (dashed) and the simplified model's fl
 Fig. 6 the estimation error ``e_e = q_l,m - q_l,i``. Signals are normalised as in the paper.
 The simplified-model flow comes from the plant library (``hydropump_sim.simulate``, eq. 10 as
 printed), driven by the measured current delayed by the identified ``t_d``: the bench delay is
-not part of the plant (model_notes I15).
+not part of the plant (docs/reference.md I15).
 
 Owns the JSON result (schema ``hydropump-fit/1``, :func:`to_dict`), the text and Markdown
 tables, the figures and the report folder (:func:`write_report`).

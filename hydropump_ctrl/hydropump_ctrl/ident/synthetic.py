@@ -130,7 +130,7 @@ def make_record(truth: Truth, *, seed: int, duration: float = 20.0, dt: float = 
 
 def paper_set(*, seed: int = 5, n: int = 9, spread: bool = False, truth: Truth | None = None,
               **kw) -> tuple[list[Recording], list[Truth]]:
-    """The nine-record set of the issue: 20 s at 1 kHz, noise 0.5 %, quantisation 0.25 %,
+    """The nine-record acceptance set: 20 s at 1 kHz, noise 0.5 %, quantisation 0.25 %,
     3 % dither at 150 Hz, staircases from a non-zero steady state.
 
     With ``spread`` each record's truth is drawn around ``truth`` with the paper's spread

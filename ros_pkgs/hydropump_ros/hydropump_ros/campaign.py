@@ -285,7 +285,8 @@ def plant_truth(params, profile, bags, ident) -> dict:
 
 
 def _nominal_tau(params) -> float:
-    """63 % time of the fine model's own 40 -> 60 % up-step, no dither (model_notes: 100.4)."""
+    """63 % time of the fine model's own 40 -> 60 % up-step, no dither (100.4 ms in
+    docs/reference.md)."""
     from hydropump_sim import equilibrium, simulate
     from hydropump_sim.metrics import step_figures
     from hydropump_sim.scaling import current_for_displacement
