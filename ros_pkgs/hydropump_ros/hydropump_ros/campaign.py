@@ -268,9 +268,11 @@ def plant_truth(params, profile, bags, ident) -> dict:
     plant = params.replace(profile.plant_overrides or {})
     recs = []
     for bag, rec in zip(bags, ident.recordings):
-        # The command starts with the controller's first update.
+        # The command starts with the controller's first update; time from there, in the
+        # grid's whole nanoseconds.
         ok = np.isfinite(rec['solenoid_current_cmd'])
-        t, u = rec.t[ok] - rec.t[ok][0], rec['solenoid_current_cmd'][ok]
+        ns = np.round(rec.t[ok] * 1e9).astype(np.int64)
+        t, u = (ns - ns[0]) * 1e-9, rec['solenoid_current_cmd'][ok]
 
         def held(tt, t=t, u=u):
             return u[np.clip(np.searchsorted(t, tt, side='right') - 1, 0, u.size - 1)]
