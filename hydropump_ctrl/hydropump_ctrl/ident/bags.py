@@ -314,8 +314,9 @@ def header_stamps(msgs: list) -> np.ndarray | None:
 # Writing bags (tests, conversions): the recorder's format, written with rosbags
 # --------------------------------------------------------------------------------------------
 
-JOINT_STATE = 'sensor_msgs/msg/JointState'
+FLOAT64 = 'std_msgs/msg/Float64'
 FLUID_PRESSURE = 'sensor_msgs/msg/FluidPressure'
+JOINT_STATE = 'sensor_msgs/msg/JointState'
 
 
 def write_bag(path: str | Path, streams: dict[str, tuple[str, np.ndarray, Any]], *,

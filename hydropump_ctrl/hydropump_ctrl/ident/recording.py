@@ -40,6 +40,7 @@ from .bags import (
     Bag,
     decode,
     existing,
+    FLOAT64,
     FLUID_PRESSURE,
     header_stamps,
     JOINT_STATE,
@@ -62,11 +63,13 @@ MODE_UNIT = 'm^3/s in flow mode, Pa in margin mode'
 
 @dataclass(frozen=True)
 class SignalSpec:
-    """A signal of the topic contract: its topic (relative), unit and label.
+    """A signal of the topic contract: its topic (relative), unit, label and message type.
 
-    ``held`` signals are piecewise constant between their messages (commands, controller
-    state); the others are samples of a continuous quantity. ``entry`` names the
-    ``sensor_msgs/JointState`` entry whose position the signal is.
+    ``held`` signals are taken as piecewise constant between their messages: commands, the
+    controller's state, and the applied current, which the fit treats as held (so it reads
+    the same whether it acts as the current or not). The others are samples of a continuous
+    quantity. ``entry`` names the ``sensor_msgs/JointState`` entry whose position the signal
+    is.
     """
 
     topic: str
@@ -74,26 +77,36 @@ class SignalSpec:
     label: str
     held: bool = False
     entry: str | None = None
+    msgtype: str = FLOAT64
+
+
+def _pressure(topic: str, label: str) -> SignalSpec:
+    return SignalSpec(topic, PRESSURE_UNIT, label, msgtype=FLUID_PRESSURE)
+
+
+def _joint(topic: str, entry: str, unit: str, label: str, held: bool = False) -> SignalSpec:
+    return SignalSpec(topic, unit, label, held=held, entry=entry, msgtype=JOINT_STATE)
 
 
 def _state(entry: str, unit: str, label: str) -> SignalSpec:
-    return SignalSpec('controller/state', unit, label, held=True, entry=entry)
+    return _joint('controller/state', entry, unit, label, held=True)
 
 
 # Labels named as in the paper. The controller's state entries are those its node publishes.
 SIGNALS = {
-    'solenoid_current': SignalSpec('solenoid_current', 'A', 'solenoid current I_s', True),
+    'solenoid_current': SignalSpec('solenoid_current', 'A', 'solenoid current I_s',
+                                   held=True),
     'solenoid_current_cmd': SignalSpec('solenoid_current_cmd', 'A',
-                                       'solenoid current command I_s,ref', True),
+                                       'solenoid current command I_s,ref', held=True),
     'line_flow': SignalSpec('line_flow', 'm^3/s', 'line flow q_l'),
     'pump_flow': SignalSpec('pump_flow', 'm^3/s', 'pump flow Q_p'),
     'load_flow': SignalSpec('load_flow', 'm^3/s', 'load flow Q_load'),
-    'line_pressure': SignalSpec('line_pressure', PRESSURE_UNIT, 'line pressure P_l'),
-    'load_pressure': SignalSpec('load_pressure', PRESSURE_UNIT, 'load pressure P_u'),
-    'actuator_pressure': SignalSpec('actuator_pressure', PRESSURE_UNIT, 'actuator pressure P_a'),
-    'spool_position': SignalSpec('joint_states', 'm', 'spool position x_c', entry='spool'),
-    'actuator_position': SignalSpec('joint_states', 'm', 'actuator position x_a',
-                                    entry='swash_plate_actuator'),
+    'line_pressure': _pressure('line_pressure', 'line pressure P_l'),
+    'load_pressure': _pressure('load_pressure', 'load pressure P_u'),
+    'actuator_pressure': _pressure('actuator_pressure', 'actuator pressure P_a'),
+    'spool_position': _joint('joint_states', 'spool', 'm', 'spool position x_c'),
+    'actuator_position': _joint('joint_states', 'swash_plate_actuator', 'm',
+                                'actuator position x_a'),
     'controller_reference': _state('reference', MODE_UNIT, 'controller reference'),
     'controller_estimate': _state('estimate', MODE_UNIT,
                                   'controller estimate of the controlled variable'),
@@ -622,9 +635,7 @@ def recording_to_bag(rec: Recording, path: str | Path, *, storage: str = 'mcap',
         spec = SIGNALS.get(sig)
         topic = f'{ns}/{(rename.get(sig) or (spec.topic if spec else sig)).strip("/")}'
         if spec is not None and spec.entry is not None:
-            streams.setdefault(topic, (JOINT_STATE, t, {}))[2][spec.entry] = v
+            streams.setdefault(topic, (spec.msgtype, t, {}))[2][spec.entry] = v
         else:
-            kind = FLUID_PRESSURE if spec is not None and spec.unit == PRESSURE_UNIT else \
-                'std_msgs/msg/Float64'
-            streams[topic] = (kind, t, v)
+            streams[topic] = (spec.msgtype if spec else FLOAT64, t, v)
     return write_bag(path, streams, storage=storage)
