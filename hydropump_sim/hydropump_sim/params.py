@@ -166,7 +166,7 @@ class Params:
 
     @property
     def x_a_stop(self) -> float:
-        """Physical stroke limit of the plate [m]: 0..100 % displacement (model_notes I1)."""
+        """Physical stroke limit of the plate [m]: 0..100 % displacement (docs/reference.md I1)."""
         return 0.5 * self.stroke_scale
 
     @property

@@ -34,7 +34,6 @@ import yaml
 from .errors import HydropumpError
 
 
-
 class _Required:
     """The default of an entry that a parameter file must give."""
 
@@ -344,12 +343,21 @@ def build(cls: type, data: Mapping[str, Any], source: str | None = None, *,
     if errors:
         raise ParamError(errors, source)
     obj = _construct(cls, values)
-    errors = list(obj.cross_checks()) if hasattr(obj, 'cross_checks') else []
+    errors = _cross_checks(obj)
     if checks is not None:
         errors += checks(obj)
     if errors:
         raise ParamError(errors, source)
     return obj
+
+
+def _cross_checks(obj: Any) -> list[str]:
+    """The ``cross_checks()`` of every group, innermost first."""
+    out: list[str] = []
+    for f, _, sub in _group_fields(type(obj)):
+        if sub is not None:
+            out += _cross_checks(getattr(obj, f.name))
+    return out + (list(obj.cross_checks()) if hasattr(obj, 'cross_checks') else [])
 
 
 def to_flat(obj: Any, prefix: str = '') -> dict[str, Any]:
@@ -362,6 +370,11 @@ def to_flat(obj: Any, prefix: str = '') -> dict[str, Any]:
         else:
             flat[f'{prefix}{name}'] = value
     return flat
+
+
+def replace(obj: Any, values: Mapping[str, Any], source: str | None = None) -> Any:
+    """A re-validated copy of a schema dataclass instance with dotted names replaced."""
+    return build(type(obj), {**to_flat(obj), **values}, source)
 
 
 def defaults_of(cls: type) -> dict[str, Any]:

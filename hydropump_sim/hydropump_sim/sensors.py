@@ -114,6 +114,15 @@ class SensorProfile:
         """The ``sensors.*`` parameters of this profile (ROS names), every signal listed."""
         return to_flat(_config(self))
 
+    @classmethod
+    def from_config(cls, cfg: SensorConfig, plant_overrides: dict | None = None
+                    ) -> SensorProfile:
+        """The profile of a validated ``sensors`` group (e.g. declared node parameters)."""
+        specs = {sig: SensorSpec(**dataclasses.asdict(getattr(cfg.sensors, sig)))
+                 for sig in SIGNALS}
+        return cls({s: sp for s, sp in specs.items() if sp.active}, cfg.sensors.seed,
+                   plant_overrides or None)
+
 
 def _config(profile: SensorProfile) -> SensorConfig:
     kw = {sig: _SENSOR_CLASSES[unit](**dataclasses.asdict(profile.spec(sig)))
@@ -136,9 +145,6 @@ def profile_from_dict(data: Mapping[str, Any], source: str | None = None) -> Sen
     if 'sensors' in sensors and not isinstance(sensors['sensors'], Mapping):
         raise ParamError(['sensors: expected a mapping of signals'], source)
     cfg = build(SensorConfig, sensors, source, what='sensor parameter')
-    active = {sig: SensorSpec(**dataclasses.asdict(getattr(cfg.sensors, sig)))
-              for sig in SIGNALS}
-    active = {sig: sp for sig, sp in active.items() if sp.active}
     overrides = {}
     for key, val in data.items():
         if key in sensors:
@@ -147,7 +153,7 @@ def profile_from_dict(data: Mapping[str, Any], source: str | None = None) -> Sen
             overrides.update({f'{key}.{k}': v for k, v in val.items()})
         else:
             overrides[key] = val
-    return SensorProfile(active, cfg.sensors.seed, overrides or None)
+    return SensorProfile.from_config(cfg, overrides)
 
 
 def check_profile_values(flat: Mapping[str, Any]) -> list[str]:

@@ -18,9 +18,9 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'simulator = hydropump_ros.simulator_node:main',
-            'controller = hydropump_ros.controller_node:main',
-            'recorder = hydropump_ros.recorder_node:main',
+            'simulator = hydropump_ros.entry:simulator',
+            'controller = hydropump_ros.entry:controller',
+            'recorder = hydropump_ros.entry:recorder',
             'hydropump-graph = hydropump_ros.graph:main',
             'hydropump-demo = hydropump_ros.campaign:main',
         ],

@@ -153,15 +153,21 @@ class Controller:
 
     def reset(self, current: float | None = None, meas: Mapping[str, float] | None = None
               ) -> None:
-        """Restart from a steady state at the absolute current ``current`` [A].
+        """Restart from a steady state at the absolute current ``current`` [A] (bumpless).
 
         ``meas`` (optional) gives the measurements at that steady state, which initialise the
-        estimates; without it the embedded model's static map is used. Default current:
+        estimates; without it the embedded model's static map is used. Without ``current``
+        the steady state's current comes from ``meas``: the applied ``solenoid_current``, or
+        else eq. 11 of the embedded model inverted on the measured flow; with neither it is
         ``limits.safe_current``.
         """
         lim = self._cfg.limits
-        u = lim.safe_current if current is None else min(max(float(current), lim.current_min),
-                                                          lim.current_max)
+        if current is None:
+            current = _value(meas, 'solenoid_current')
+        if current is None:
+            q = _value(meas, self._cfg.controller.flow_signal)
+            current = lim.safe_current if q is None else self._pump.current(q)
+        u = min(max(float(current), lim.current_min), lim.current_max)
         self._command = u
         self._desired = u
         self._t_last = None

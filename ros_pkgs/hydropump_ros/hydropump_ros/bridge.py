@@ -1,17 +1,16 @@
-"""Parameter bridge and message helpers shared by the nodes.
+"""The schema -> ROS parameter bridge shared by the nodes.
 
-The schemas live in the pure packages (``hydropump_sim.params``, ``hydropump_sim.sensors``,
-the controller's gains); this module only turns them into ROS parameter descriptors, reads
-them back and reports bad values with the schema's one-line messages.
+The schemas live in the pure packages (:mod:`hydropump_sim.schema` and the dataclasses built
+on it); this module only turns them into ``ParameterDescriptor`` declarations, reads the
+values back as the typed configuration, and answers a refused change with the schema's own
+one-line reason (unit, range, unit hint) instead of rclpy's generic one.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
-import difflib
+from collections.abc import Iterable, Mapping
 from typing import Any
 
-from builtin_interfaces.msg import Time
 from rcl_interfaces.msg import (
     FloatingPointRange,
     IntegerRange,
@@ -19,24 +18,40 @@ from rcl_interfaces.msg import (
     ParameterType,
     SetParametersResult,
 )
-from rclpy.exceptions import (
-    InvalidParameterTypeException,
-    InvalidParameterValueException,
-    ParameterAlreadyDeclaredException,
-)
 from rclpy.node import Node
 
-from hydropump_sim.schema import check_value, ParamSpec, read_yaml, ros_parameters
+from hydropump_sim.errors import HydropumpError
+from hydropump_sim.schema import (
+    build,
+    check_value,
+    ParamError,
+    ParamSpec,
+    specs_of,
+    unknown_key_line,
+)
 
 # Parameters every rclpy node may receive without declaring them.
-_BUILTIN = ('use_sim_time', 'start_type_description_service')
+BUILTIN = ('use_sim_time', 'start_type_description_service')
+
+_PTYPE = {float: ParameterType.PARAMETER_DOUBLE, bool: ParameterType.PARAMETER_BOOL,
+          str: ParameterType.PARAMETER_STRING, int: ParameterType.PARAMETER_INTEGER,
+          list: ParameterType.PARAMETER_STRING_ARRAY}
+
+
+class StartupError(HydropumpError):
+    """Bad configuration at start-up: the lines are printed and the node exits with 2."""
+
+
+def overrides(node: Node) -> dict[str, Any]:
+    """The parameter overrides the node was started with (``--params-file``, ``-p``), as plain
+    values. rclpy keeps them in a private attribute; this is the one place that reads it."""
+    raw = getattr(node, '_parameter_overrides', None) or {}
+    return {name: p.value for name, p in raw.items()}
 
 
 def descriptor(spec: ParamSpec, read_only: bool) -> ParameterDescriptor:
     """ROS descriptor of a schema entry: type, unit-first description, range, read-only."""
-    ptype = {float: ParameterType.PARAMETER_DOUBLE, bool: ParameterType.PARAMETER_BOOL,
-             str: ParameterType.PARAMETER_STRING, int: ParameterType.PARAMETER_INTEGER}
-    d = ParameterDescriptor(name=spec.name, type=ptype[spec.type], read_only=read_only,
+    d = ParameterDescriptor(name=spec.name, type=_PTYPE[spec.type], read_only=read_only,
                             description=f'[{spec.unit}] {spec.desc}')
     lo, hi = spec.range
     if spec.type is float and lo is not None and hi is not None:
@@ -49,127 +64,110 @@ def descriptor(spec: ParamSpec, read_only: bool) -> ParameterDescriptor:
     return d
 
 
-def declare(node: Node, specs: Iterable[ParamSpec], defaults: dict[str, Any],
-            live: bool | None = None) -> tuple[dict[str, Any], list[str]]:
-    """Declare schema parameters with file defaults; overrides (``--params-file``, ``-p``)
-    win. Returns the values and one error line per bad override.
+class Declarer:
+    """Declares the parameters of one or more schemas on a node, collecting every problem,
+    so that a user sees all bad values at once (:meth:`finish` raises them)."""
 
-    Ranges are checked here with the schema's own message (unit, range, unit hints) rather than
-    rclpy's generic exception. ``live=None`` takes each spec's own ``live`` flag; parameters
-    that are not live are read-only.
-    """
-    values, errors = {}, []
-    overrides = getattr(node, '_parameter_overrides', {})
-    for s in specs:
-        read_only = not (s.live if live is None else live)
-        raw = overrides[s.name].value if s.name in overrides else defaults.get(s.name)
-        if raw is None:
-            errors.append(f'{s.name}: missing ({s.unit}, {s.desc})')
-            continue
-        if s.type is float and isinstance(raw, int) and not isinstance(raw, bool):
-            raw = float(raw)
-        value, err = check_value(s, raw)
-        if err:
-            errors.append(err)
-            continue
-        d = descriptor(s, read_only)
+    def __init__(self, node: Node):
+        self.node = node
+        self.given = overrides(node)
+        self.errors: list[str] = []
+        self.specs: dict[str, ParamSpec] = {}
+
+    def declare(self, cls: type, defaults: Mapping[str, Any] | None = None, *,
+                source: str | None = None, read_only: bool | None = None):
+        """Declare every parameter of the schema dataclass ``cls``; return the typed,
+        cross-checked configuration, or ``None`` (the problems are kept for :meth:`finish`).
+
+        Values come from the overrides, else ``defaults`` (e.g. a params file's values),
+        else the schema's own defaults. Parameters that are not ``live`` are read-only, or
+        all of them with ``read_only=True``.
+        """
+        defaults = defaults or {}
+        values, bad = {}, False
+        for s in specs_of(cls):
+            self.specs[s.name] = s
+            if s.name in self.given:
+                raw = self.given[s.name]
+            elif s.name in defaults:
+                raw = defaults[s.name]
+            elif not s.required:
+                raw = s.default
+            else:
+                self.errors.append(f'{s.name}: missing ({s.unit}, {s.desc})'
+                                   + (f' in {source}' if source else ''))
+                bad = True
+                continue
+            value, err = check_value(s, raw)
+            if err:
+                where = '' if s.name in self.given or not source else f' (in {source})'
+                self.errors.append(err + where)
+                bad = True
+                continue
+            ro = (not s.live) if read_only is None else read_only
+            self.node.declare_parameter(s.name, value, descriptor(s, ro), ignore_override=True)
+            values[s.name] = value
+        if bad:
+            return None
         try:
-            node.declare_parameter(s.name, value, d, ignore_override=True)
-        except (InvalidParameterTypeException, InvalidParameterValueException,
-                ParameterAlreadyDeclaredException) as exc:
-            errors.append(f'{s.name}: {exc}')
-            continue
-        values[s.name] = value
-    return values, errors
+            return build(cls, values, source)
+        except ParamError as exc:
+            self.errors += exc.lines
+            return None
+
+    def finish(self) -> None:
+        """Raise :class:`StartupError` for every problem, and for every override that names
+        no parameter of the node (probably a typo)."""
+        known = set(self.specs) | set(BUILTIN)
+        for name in self.given:
+            if name not in known and not name.startswith('qos_overrides.'):
+                self.errors.append(unknown_key_line(name, sorted(known),
+                                                    f'parameter of node {self.node.get_name()}'))
+        if self.errors:
+            raise StartupError(self.errors)
 
 
-def unknown_overrides(node: Node, known: Iterable[str]) -> list[str]:
-    """One line per override that names no parameter of this node (probably a typo)."""
-    known = set(known) | set(_BUILTIN)
-    lines = []
-    for name in getattr(node, '_parameter_overrides', {}):
-        if name in known or name.startswith('qos_overrides.'):
-            continue
-        close = difflib.get_close_matches(name, sorted(known), n=1, cutoff=0.6)
-        hint = f' (did you mean {close[0]}?)' if close else ''
-        lines.append(f'{name}: unknown parameter of node {node.get_name()}{hint}')
-    return lines
+def declare(node: Node, cls: type, defaults: Mapping[str, Any] | None = None):
+    """Declare the schema ``cls`` alone on ``node``: the typed configuration, or
+    :class:`StartupError` with every problem."""
+    d = Declarer(node)
+    cfg = d.declare(cls, defaults)
+    d.finish()
+    return cfg
 
 
-def validate_live(specs: dict[str, ParamSpec], params) -> SetParametersResult:
-    """Check a batch of live parameter changes; a rejection carries the schema's reason."""
+def refusal(specs: Mapping[str, ParamSpec], params: Iterable) -> str | None:
+    """The schema's reason for refusing a batch of parameter changes, or ``None``."""
     for p in params:
         s = specs.get(p.name)
         if s is None:
             continue
+        if s.type is float and isinstance(p.value, int) and not isinstance(p.value, bool):
+            continue  # rclpy refuses the type itself, with a clear reason
         _, err = check_value(s, p.value)
         if err:
-            return SetParametersResult(successful=False, reason=err)
-    return SetParametersResult(successful=True)
+            return err
+        if not s.live:
+            return f'{p.name} is read-only while the node runs (restart it to change it)'
+    return None
 
 
-def file_defaults(path: str) -> dict:
-    """Flat ``{'group.key': value}`` defaults from a params file."""
-    doc = ros_parameters(read_yaml(path))
-    flat = {}
-    for g, grp in (doc or {}).items():
-        if isinstance(grp, dict):
-            for k, v in grp.items():
-                if isinstance(v, dict):
-                    for kk, vv in v.items():
-                        flat[f'{g}.{k}.{kk}'] = vv
-                else:
-                    flat[f'{g}.{k}'] = v
-        else:
-            flat[g] = grp
-    return flat
+class ExplainedParameters:
+    """Node mixin: a refused parameter change (``ros2 param set``) answers with the schema's
+    reason, unit hint included, rather than rclpy's generic range message. The node keeps its
+    schema entries in ``self.schema_specs``."""
+
+    schema_specs: dict[str, ParamSpec] = {}
+
+    def set_parameters_atomically(self, parameter_list) -> SetParametersResult:
+        result = super().set_parameters_atomically(parameter_list)
+        if not result.successful:
+            reason = refusal(self.schema_specs, parameter_list)
+            if reason:
+                result.reason = reason
+        return result
 
 
-class StartupError(Exception):
-    """Bad configuration at start-up: ``lines`` are printed and the node exits with 2."""
-
-    def __init__(self, lines):
-        self.lines = list(lines)
-        super().__init__('\n'.join(self.lines))
-
-
-def build_or_exit(factory):
-    """Construct a node; on :class:`StartupError` print its lines and return ``None``."""
-    import sys
-
-    import rclpy
-    try:
-        return factory()
-    except StartupError as exc:
-        for line in exc.lines:
-            print(f'error: {line}', file=sys.stderr)
-        rclpy.try_shutdown()
-        return None
-
-
-def init_or_exit(args=None) -> bool:
-    """``rclpy.init`` that turns a bad command line (e.g. a missing ``--params-file``) into
-    one ``error:`` line instead of a traceback; returns False when the node must exit."""
-    import sys
-
-    import rclpy
-    try:
-        rclpy.init(args=args)
-    except Exception as exc:  # rclpy raises RCLError, without a public class to catch
-        text = str(exc).replace('\n', ' ')
-        print(f'error: cannot start: {text}', file=sys.stderr)
-        return False
-    return True
-
-
-def stamp(t: float) -> Time:
-    """Simulation time [s] as a ``builtin_interfaces/Time``."""
-    ns = int(round(t * 1e9))
-    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
-
-
-def set_stamp(msg_time: Time, ns: int) -> None:
-    """Write ``ns`` nanoseconds into an existing ``Time`` (no allocation in the hot loop)."""
-    msg_time.sec = ns // 1_000_000_000
-    msg_time.nanosec = ns % 1_000_000_000
-
+def result(reason: str | None) -> SetParametersResult:
+    """A ``SetParametersResult``: refused with ``reason``, or accepted."""
+    return SetParametersResult(successful=reason is None, reason=reason or '')

@@ -1,84 +1,52 @@
-"""The ``recorder`` node: topics to a rosbag2 bag (``metadata.yaml`` version 9 + MCAP).
+"""The ``recorder`` node: topics to rosbag2 bags (MCAP), in one clock, losing nothing.
 
-Messages are taken serialized (no decode) and written with ``rosbags``. Log times:
+The logic is pure (:mod:`hydropump_ctrl.recorder`): the sequencer gives every message its log
+time by the rule of time (simulation time wherever a ``/clock`` is present, wall time only
+where none is) and writes in log-time order behind a per-topic watermark; the bag writer
+writes what rosbag2 Jazzy writes. This node takes the messages serialized, from a thread that
+serves every subscription round-robin (a bounded batch per topic per pass, ``/clock`` last),
+and reads the publishers' QoS from the graph for ``offered_qos_profiles``.
 
-- a message with a ``std_msgs/Header`` gets its header stamp;
-- with ``use_sim_time``, an unstamped message gets the simulation time of the latest
-  ``/clock`` its publisher had sent before it (matched by DDS source timestamps, so arrival
-  order does not matter: the simulator publishes ``/clock`` first in every step);
-- otherwise the receive time.
+- A jump back of simulation time (a new simulator) closes the bag and opens a new one; a
+  ``/clock`` that appears under a bag recorded in wall time does the same. Each says so.
+- Messages lost on the way (gaps in a publisher's sequence numbers) are counted, reported in
+  ``/diagnostics`` and in the bag's ``custom_data``; never silent.
+- ``~/stop``, SIGINT and SIGTERM stop at once: the bag gets what was published up to the
+  latest ``/clock`` and had arrived, or arrives within the next second, and closes.
 
-Messages wait in a short reorder buffer and are written in (log time, topic, arrival) order,
-so two identical lock-step runs give byte-identical bags. The MCAP chunk is closed and
-flushed every ``flush_period`` of simulation time (wall time without ``use_sim_time``): a hard
-kill (SIGKILL) loses at most ``flush_period + reorder_window`` (0.35 s by default) plus any
-backlog, and the bag then has no summary and no ``metadata.yaml``: the project's reader
-reads it anyway, and ``ros2 bag reindex`` rebuilds the metadata. SIGINT and SIGTERM close
-the bag cleanly.
-
-Services (``std_srvs/Trigger``): ``~/start`` opens a bag, ``~/stop`` waits for the queues to go
-quiet and closes it, ``~/ready`` answers whether every topic has a matched publisher.
+Services (``std_srvs/Trigger``): ``~/start`` opens a bag, ``~/stop`` closes it, ``~/ready``
+answers whether every topic has a matched publisher.
 """
 
 from __future__ import annotations
 
-from collections import deque
 from datetime import datetime
-import heapq
 import importlib
 from pathlib import Path
-import signal
 import struct
-import sys
 import threading
 import time
 
-import rclpy
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.task import Future
-from rosbags.rosbag2 import StoragePlugin, Writer
-from rosbags.typesys import get_typestore, Stores
 from std_srvs.srv import Trigger
 
-from hydropump_sim.schema import ParamSpec
+from hydropump_ctrl.recorder import (
+    BagError,
+    BagWriter,
+    qos_profile,
+    RecorderConfig,
+    Sequencer,
+    SUITE_TYPES,
+    unique_path,
+)
+from hydropump_sim.schema import spec_map, specs_of
 
-from . import bridge
+from . import bridge, entry
 
-# Suite topics and their types; other topics are looked up in the ROS graph.
-KNOWN_TYPES = {
-    'solenoid_current_cmd': 'std_msgs/msg/Float64',
-    'solenoid_current': 'std_msgs/msg/Float64',
-    'pump_flow': 'std_msgs/msg/Float64',
-    'line_flow': 'std_msgs/msg/Float64',
-    'load_flow': 'std_msgs/msg/Float64',
-    'actuator_pressure': 'sensor_msgs/msg/FluidPressure',
-    'line_pressure': 'sensor_msgs/msg/FluidPressure',
-    'load_pressure': 'sensor_msgs/msg/FluidPressure',
-    'joint_states': 'sensor_msgs/msg/JointState',
-    'controller/state': 'sensor_msgs/msg/JointState',
-    '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
-    '/clock': 'rosgraph_msgs/msg/Clock',
-}
-DEFAULT_TOPICS = ['solenoid_current_cmd', 'solenoid_current', 'pump_flow', 'line_flow',
-                  'load_flow', 'actuator_pressure', 'line_pressure', 'load_pressure',
-                  'joint_states', 'controller/state']
-
-SPECS = [
-    ParamSpec('topics', list, '-', 'topics to record (relative names resolve in the namespace)',
-              (None, None), None, False, False),
-    ParamSpec('output', str, 'path', 'bag directory; empty = bags/recorder_<time>; an existing '
-              'one is never overwritten', (None, None), None, True, False),
-    ParamSpec('autostart', bool, '-', 'open a bag and record at start-up', (None, None), None,
-              False, False),
-    ParamSpec('flush_period', float, 's', 'close and flush the MCAP chunk this often (sim '
-              'time with use_sim_time)', (0.01, 10.0), None, False, False),
-    ParamSpec('reorder_window', float, 's', 'hold messages this long to write them in time '
-              'order', (0.0, 5.0), None, False, False),
-]
+STOP_LIMIT = 0.8   # s: a stop waits at most this long for messages still on their way
 
 
 def _msg_class(msgtype: str):
@@ -86,327 +54,354 @@ def _msg_class(msgtype: str):
     return getattr(importlib.import_module(f'{pkg}.msg'), name)
 
 
-def _header_stamp(data: bytes) -> int:
+def _stamp(data: bytes) -> int:
     """Stamp [ns] of a serialized message that starts with a Header (or a Clock)."""
     little = data[1] == 1  # CDR encapsulation: 0x0001 little endian, 0x0000 big endian
     sec, nsec = struct.unpack_from('<iI' if little else '>iI', data, 4)
     return sec * 1_000_000_000 + nsec
 
 
-class _Bag:
-    """One open bag: the writer, its connections and the time-ordered write buffer."""
+def _qos_dict(q) -> dict:
+    """An rclpy QoS profile of the graph in rosbag2's metadata layout."""
+    def dur(d):
+        ns = d.nanoseconds
+        return None if ns >= 2 ** 63 - 1 or ns < 0 else {'sec': ns // 10 ** 9,
+                                                          'nsec': ns % 10 ** 9}
 
-    def __init__(self, path: Path, typestore):
+    def name(e):
+        return e.name.lower()
+    return qos_profile(name(q.history), q.depth, name(q.reliability), name(q.durability),
+                       name(q.liveliness), dur(q.deadline), dur(q.lifespan),
+                       dur(q.liveliness_lease_duration), q.avoid_ros_namespace_conventions)
+
+
+class _Session:
+    """One open bag: its writer, its sequencer once the time base is known, loss counts."""
+
+    def __init__(self, node: RecorderNode, path: Path):
+        cfg = node.cfg
+        self.node = node
         self.path = path
-        self.writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
-        self.writer.open()
-        self.typestore = typestore
-        self.conns: dict[str, object] = {}
-        self.heap: list = []
-        self.count = 0
-        self.chunk_end: int | None = None
+        self.writer = BagWriter(path, compression=cfg.compression,
+                                chunk_period=cfg.flush_period).open()
+        self.opened = time.monotonic()
+        self.seq: Sequencer | None = None
+        self.early: list = []                       # messages before the time base is known
+        self.last_pub: dict[str, int] = {}          # topic -> last publication sequence number
+        self.lost: dict[str, int] = {}
+        self.stop_at: int | None = None             # sim ns: nothing after it is recorded
+        self.dropped_after_stop = 0
 
-    def connection(self, topic: str, msgtype: str):
-        if topic not in self.conns:
-            self.conns[topic] = self.writer.add_connection(topic, msgtype,
-                                                           typestore=self.typestore)
-        return self.conns[topic]
+    def start_sequencer(self, mode: str) -> None:
+        self.seq = Sequencer(self.node.topics, mode, idle_timeout=self.node.cfg.idle_timeout)
+        for topic in self.node.matched():
+            self.seq.matched(topic)
+        early, self.early = self.early, []
+        for item in early:
+            self._feed(*item)
 
-    def push(self, log_ns: int, order: int, seq: int, topic: str, data: bytes) -> None:
-        heapq.heappush(self.heap, (log_ns, order, seq, topic, data))
+    def message(self, topic: str, stamped: bool, data: bytes, info: dict) -> None:
+        seq_no = info.get('publication_sequence_number')
+        if seq_no is not None and self.node.single_publisher(topic):
+            last = self.last_pub.get(topic)
+            if last is not None and seq_no > last + 1:
+                self.lost[topic] = self.lost.get(topic, 0) + seq_no - last - 1
+            self.last_pub[topic] = seq_no
+        item = (topic, stamped, data, info, time.time_ns())
+        if self.seq is None:
+            self.early.append(item)
+        else:
+            self._feed(*item)
 
-    def write_until(self, horizon: int, flush_period_ns: int) -> None:
-        """Write buffered messages up to ``horizon``; close a chunk at every period boundary
-        of log time, so chunking depends on the data, not on arrival timing."""
-        heap = self.heap
-        while heap and heap[0][0] <= horizon:
-            log_ns, _, _, topic, data = heapq.heappop(heap)
-            if self.chunk_end is None:
-                self.chunk_end = (log_ns // flush_period_ns + 1) * flush_period_ns
-            elif log_ns >= self.chunk_end:
-                self.flush()
-                self.chunk_end = (log_ns // flush_period_ns + 1) * flush_period_ns
-            self.writer.write(self.conns[topic], log_ns, data)
-            self.count += 1
+    def _feed(self, topic, stamped, data, info, received) -> None:
+        stamp = _stamp(data) if stamped else None
+        if self.stop_at is not None and stamp is not None and stamp > self.stop_at:
+            self.dropped_after_stop += 1
+            return
+        self.seq.message(topic, data, source_ns=info['source_timestamp'], stamp_ns=stamp,
+                         receive_ns=received)
 
-    def flush(self) -> None:
-        # rosbags 0.11 has no public flush; closing the pending chunk writes it out whole.
-        storage = self.writer.storage
-        if storage is not None and storage.chunk.bio.tell():
-            storage.close_chunk()
-            storage.bio.flush()
+    def write(self, records) -> None:
+        w = self.writer
+        for r in records:
+            if self.stop_at is not None and self.seq.mode == 'sim' and r.log_ns > self.stop_at:
+                self.dropped_after_stop += 1
+                continue
+            if r.topic not in w.topics:
+                w.add_topic(r.topic, self.node.types[r.topic], self.node.offered_qos(r.topic))
+            w.write(r.topic, r.log_ns, r.data, r.publish_ns)
 
-    def close(self) -> None:
-        self.write_until(2**63 - 1, 2**62)
-        self.writer.close()
+    def complete(self) -> bool:
+        """Has every active topic delivered up to the stop time?"""
+        seq = self.seq
+        if seq is None or seq.mode == 'wall' or self.stop_at is None:
+            return True
+        return seq.complete(self.stop_at)
+
+    def close(self, reason: str) -> Path:
+        if self.seq is None and self.early:
+            self.start_sequencer('wall')
+        if self.seq is not None:
+            self.write(self.seq.drain())
+            w = self.writer
+            w.custom_data.update({
+                'time_base': 'simulation' if self.seq.mode == 'sim' else 'wall',
+                'messages_lost': str(sum(self.lost.values())),
+                'messages_late': str(self.seq.late),
+                'closed_by': reason})
+            for topic, n in self.lost.items():
+                w.custom_data[f'lost.{topic}'] = str(n)
+        return self.writer.close()
 
 
-class RecorderNode(Node):
+class RecorderNode(bridge.ExplainedParameters, Node):
+    """Topics to rosbag2 bags (see the module)."""
 
-    def __init__(self, **kwargs):
-        super().__init__('recorder', **kwargs)
-        defaults = {'topics': DEFAULT_TOPICS, 'output': '', 'autostart': True,
-                    'flush_period': 0.25, 'reorder_window': 0.1}
-        self.cfg = {}
-        for s in SPECS:
-            d = bridge.descriptor(s, read_only=not s.live) if s.type is not list else None
-            self.cfg[s.name] = self.declare_parameter(s.name, defaults[s.name], d).value
-        self.sim_time = self.get_parameter('use_sim_time').value
-        self.typestore = get_typestore(Stores.ROS2_JAZZY)
-        self._lock = threading.Lock()
-        self._bag: _Bag | None = None
-        self._seq = 0
-        self._clocks: deque = deque(maxlen=100000)   # (source ns, clock ns)
-        self._pending: list = []                     # unstamped, waiting for a later clock
-        self._latest: dict[str, int] = {}            # topic -> last log time
-        self._last_rx = time.monotonic()
-        self._drain_waiters: list = []
-        self._types: dict[str, str] = {}
-        # Reliable and keep-all on both ends: a recorder that lags buffers instead of
-        # dropping, and catches up before a stop closes the bag.
+    def __init__(self):
+        super().__init__('recorder')
+        self.cfg = bridge.declare(self, RecorderConfig)
+        self.schema_specs = spec_map(RecorderConfig)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self._lock = threading.RLock()
+        self._session: _Session | None = None
+        self._closed: list[tuple[Path, int]] = []
+        self._stop_request: tuple[float, threading.Event] | None = None
+        self.topics = [self.resolve_topic_name(n) for n in self.cfg.topics]
+        self.types: dict[str, str] = {}
         self._qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                                history=HistoryPolicy.KEEP_ALL)
-        # The data subscriptions live on a hidden node that no executor spins: a take loop
-        # serves them, at about four times the rate rclpy's executor reaches. Names are
-        # resolved (remapped) by this node first.
+        # The data subscriptions live on a node that no executor spins: the take loop serves
+        # them, at about four times the rate of rclpy's executor. Names are resolved
+        # (remapped) by this node first.
         self._io = Node(f'_{self.get_name()}_io', namespace=self.get_namespace(),
                         context=self.context, use_global_arguments=False,
                         start_parameter_services=False)
-        self._subs: list = []  # (subscription, topic, order, stamped); order -1 is /clock
-        self._add(self.resolve_topic_name('/clock'), 'rosgraph_msgs/msg/Clock', -1)
-        self._topics = [self.resolve_topic_name(name) for name in self.cfg['topics']]
-        for i, (name, topic) in enumerate(zip(self.cfg['topics'], self._topics)):
-            msgtype = KNOWN_TYPES.get(name) or KNOWN_TYPES.get(topic)
+        self._subs: list = []                        # (subscription, topic, stamped)
+        self._clock_sub = self._io.create_subscription(
+            _msg_class(SUITE_TYPES['/clock']), '/clock', lambda *_: None, self._qos, raw=True)
+        for name, topic in zip(self.cfg.topics, self.topics):
+            msgtype = SUITE_TYPES.get(name) or SUITE_TYPES.get(topic)
             if msgtype:
-                self._add(topic, msgtype, i)
-        # Steady-clock timers: with use_sim_time a paused simulator would stop them.
+                self._add(topic, msgtype)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
-        if len(self._types) - 1 < len(self._topics):
-            self._discovery = self.create_timer(0.5, self._discover, clock=steady)
+        self._discovery = self.create_timer(0.2, self._discover, clock=steady)
+        self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self.create_timer(1.0, self._publish_diagnostics, clock=steady)
         self.create_service(Trigger, '~/start', self._on_start)
         self.create_service(Trigger, '~/stop', self._on_stop)
         self.create_service(Trigger, '~/ready', self._on_ready)
-        # Its own group: a stop waiting (suspended) in the default group must not block it.
-        self.create_timer(0.05, self._check_drained,
-                          callback_group=MutuallyExclusiveCallbackGroup(), clock=steady)
-        self._halt = False
+        self._halt = threading.Event()
+        if self.cfg.autostart:
+            try:
+                self.start()
+            except BagError as exc:
+                raise bridge.StartupError([f'output = {self.cfg.output!r}: {ln}'
+                                           for ln in exc.lines]) from None
         self._taker = threading.Thread(target=self._take_loop, name='take', daemon=True)
-        if self.cfg['autostart']:
-            self.start()
         self._taker.start()
 
-    # ---- subscriptions -------------------------------------------------------------------
+    # ---- graph ---------------------------------------------------------------------------
 
-    def _add(self, topic: str, msgtype: str, order: int) -> None:
+    def _add(self, topic: str, msgtype: str) -> None:
         cls = _msg_class(msgtype)
         fields = list(cls.get_fields_and_field_types().items())
         stamped = bool(fields) and fields[0] == ('header', 'std_msgs/Header')
         sub = self._io.create_subscription(cls, topic, lambda *_: None, self._qos, raw=True)
         with self._lock:
-            self._types[topic] = msgtype
-            self._subs.append((sub, topic, order, stamped))
-            if self._bag is not None and order >= 0:
-                self._bag.connection(topic, msgtype)
+            self.types[topic] = msgtype
+            self._subs.append((sub, topic, stamped))
 
     def _discover(self) -> None:
-        graph = dict(self.get_topic_names_and_types())
-        for i, topic in enumerate(self._topics):
-            if topic not in self._types and topic in graph:
-                self._add(topic, graph[topic][0], i)
-        if all(t in self._types for t in self._topics):
-            self._discovery.cancel()
+        missing = [t for t in self.topics if t not in self.types]
+        if missing:
+            graph = dict(self.get_topic_names_and_types())
+            for topic in missing:
+                if topic in graph:
+                    self._add(topic, graph[topic][0])
+        with self._lock:
+            s = self._session
+            if s is not None and s.seq is not None:
+                for topic in self.matched():
+                    s.seq.matched(topic)
+
+    def matched(self) -> list[str]:
+        return [topic for sub, topic, _ in self._subs if sub.get_publisher_count() > 0]
+
+    def single_publisher(self, topic: str) -> bool:
+        return self._io.count_publishers(topic) == 1
+
+    def offered_qos(self, topic: str) -> list[dict]:
+        """The QoS of the topic's publishers, as rosbag2 records them."""
+        return [_qos_dict(i.qos_profile) for i in self._io.get_publishers_info_by_topic(topic)]
+
+    # ---- the take loop -------------------------------------------------------------------
 
     def _take_loop(self) -> None:
-        while not self._halt:
+        batch = self.cfg.take_batch
+        while not self._halt.is_set():
             got = 0
-            for sub, topic, order, stamped in list(self._subs):
-                handle = sub.handle
-                while True:
-                    taken = handle.take_message(sub.msg_type, True)
+            with self._lock:
+                s = self._session
+                for sub, topic, stamped in self._subs:
+                    for _ in range(batch):
+                        taken = sub.handle.take_message(sub.msg_type, True)
+                        if taken is None:
+                            break
+                        got += 1
+                        if s is not None:
+                            s.message(topic, stamped, *taken)
+                for _ in range(batch):
+                    taken = self._clock_sub.handle.take_message(self._clock_sub.msg_type, True)
                     if taken is None:
                         break
                     got += 1
-                    data, info = taken
-                    if order < 0:
-                        self._on_clock(data, info)
-                    else:
-                        self._on_message(topic, order, stamped, data, info)
-            if got:
-                self._last_rx = time.monotonic()
-            else:
+                    if s is not None:
+                        s = self._on_clock(s, *taken)
+                if s is not None:
+                    self._advance(s)
+            if not got:
                 time.sleep(0.0005)
 
-    def _on_message(self, topic, order, stamped, data, info) -> None:
-        with self._lock:
-            bag = self._bag
-            if bag is None:
-                return
-            self._seq += 1
-            log = _header_stamp(data) if stamped else None
-            if log:
-                bag.push(log, order, self._seq, topic, data)
-                self._latest[topic] = log
-            elif self.sim_time:
-                self._pending.append((info['source_timestamp'], order, self._seq, topic, data))
-            else:
-                now = self.get_clock().now().nanoseconds
-                bag.push(now, order, self._seq, topic, data)
-                bag.write_until(now, int(self.cfg['flush_period'] * 1e9))
+    def _on_clock(self, s: _Session, data: bytes, info: dict) -> _Session:
+        ns = _stamp(data)
+        if s.seq is None:
+            s.start_sequencer('sim')
+        elif s.seq.mode == 'wall':
+            return self._restart(s, 'a /clock appeared: the bag so far is in wall time, the '
+                                    'next one in simulation time', ns, info)
+        jump = s.seq.clock(ns, info['source_timestamp'])
+        if jump is not None:
+            return self._restart(s, jump.describe(), ns, info)
+        return s
 
-    def _on_clock(self, data, info) -> None:
-        clock_ns = _header_stamp(data)  # Clock starts with its time, laid out as a stamp
-        src = info['source_timestamp']
-        with self._lock:
-            self._clocks.append((src, clock_ns))
-            bag = self._bag
-            if bag is None:
-                return
-            self._resolve(bag, src)
-            window = int(self.cfg['reorder_window'] * 1e9)
-            horizon = clock_ns - window
-            active = [t for t in self._latest.values() if t >= clock_ns - window]
-            if active:
-                horizon = min(horizon, min(active))
-            bag.write_until(horizon, int(self.cfg['flush_period'] * 1e9))
+    def _restart(self, s: _Session, why: str, ns: int, info: dict) -> _Session:
+        old = self._close(s, why)
+        new = self._open()
+        new.start_sequencer('sim')
+        new.seq.clock(ns, info['source_timestamp'])
+        self.get_logger().warn(f'{why}: closed {old}, recording to {new.path}')
+        return new
 
-    def _resolve(self, bag: _Bag, src_limit: int | None) -> None:
-        """Give unstamped messages published before ``src_limit`` their clock time."""
-        keep = []
-        clocks = self._clocks
-        for item in self._pending:
-            src, order, seq, topic, data = item
-            if src_limit is not None and src >= src_limit:
-                keep.append(item)
-                continue
-            log = None
-            for c_src, c_ns in reversed(clocks):
-                if c_src <= src:
-                    log = c_ns
-                    break
-            if log is None:
-                log = clocks[0][1] if clocks else 0
-            bag.push(log, order, seq, topic, data)
-            self._latest[topic] = log
-        self._pending = keep
+    def _advance(self, s: _Session) -> None:
+        req = self._stop_request
+        if s.seq is None:
+            wait = time.monotonic() - s.opened
+            if s.early and wait > self.cfg.clock_wait and self._io.count_publishers(
+                    '/clock') == 0:
+                s.start_sequencer('wall')
+            elif req is not None:
+                self._closed.append((self._close(s, 'stop'), s.writer.count))
+                req[1].set()
+            return
+        s.seq.pass_done()
+        s.write(s.seq.ready())
+        if req is not None and (s.complete() or time.monotonic() > req[0]):
+            self._closed.append((self._close(s, 'stop'), s.writer.count))
+            req[1].set()
 
     # ---- start / stop --------------------------------------------------------------------
 
-    def _bag_path(self) -> Path:
+    def _open(self) -> _Session:
         out = self.get_parameter('output').value
         path = Path(out) if out else Path('bags') / f'recorder_{datetime.now():%Y%m%d-%H%M%S}'
-        base, n = path, 1
-        while path.exists():
-            path = base.with_name(f'{base.name}_{n}')
-            n += 1
-        path.parent.mkdir(parents=True, exist_ok=True)
+        s = _Session(self, unique_path(path))
+        self._session = s
+        return s
+
+    def _close(self, s: _Session, reason: str) -> Path:
+        path = s.close(reason)
+        self._session = None
+        lost = sum(s.lost.values())
+        self.get_logger().info(f'closed {path.resolve()}: {s.writer.count} messages'
+                               + (f', {lost} LOST on the way' if lost else ''))
         return path
 
     def start(self) -> Path:
         with self._lock:
-            if self._bag is not None:
-                return self._bag.path
-            path = self._bag_path()
-            self._bag = _Bag(path, self.typestore)
-            for topic in self._topics:
-                if topic in self._types:
-                    self._bag.connection(topic, self._types[topic])
-            self._pending.clear()
-            self._latest.clear()
-        self.get_logger().info(f'recording {len(self._topics)} topics to {path}')
-        return path
+            if self._session is not None:
+                return self._session.path
+            s = self._open()
+        self.get_logger().info(f'recording {len(self.topics)} topics to {s.path.resolve()}')
+        return s.path
 
-    def stop(self) -> tuple[Path, int] | None:
+    def stop(self, limit: float = STOP_LIMIT) -> tuple[Path, int] | None:
+        """Stop recording now; close once what was sent up to the latest /clock is in."""
         with self._lock:
-            bag, self._bag = self._bag, None
-            if bag is None:
+            s = self._session
+            if s is None:
                 return None
-            self._resolve(bag, None)
-            bag.close()
-        self.get_logger().info(f'closed {bag.path}: {bag.count} messages')
-        return bag.path, bag.count
+            if s.seq is not None and s.seq.time.latest is not None:
+                s.stop_at = s.seq.time.latest
+            done = threading.Event()
+            self._stop_request = (time.monotonic() + limit, done)
+        if not (self._taker.is_alive() and done.wait(limit + 1.0)):
+            with self._lock:
+                if self._session is s:
+                    self._closed.append((self._close(s, 'stop'), s.writer.count))
+        with self._lock:
+            self._stop_request = None
+            return self._closed[-1] if self._closed else None
 
-    def _on_ready(self, request, response):
-        """Ready when every recorded topic has a matched publisher: an experiment that
-        starts after this loses nothing to discovery."""
-        matched = {topic: sub.get_publisher_count() for sub, topic, _, _ in self._subs}
-        waiting = [t for t in self._topics if matched.get(t, 0) < 1]
-        response.success = not waiting
-        response.message = ('waiting for a publisher on ' + ', '.join(waiting) if waiting
-                            else 'all topics matched')
-        return response
-
-    def halt(self) -> None:
-        """End the take loop and the hidden subscription node."""
-        self._halt = True
+    def close(self) -> None:
+        """SIGINT or SIGTERM: stop recording, close the bag, end the take loop."""
+        self.stop()
+        self._halt.set()
         self._taker.join(timeout=2.0)
         self._io.destroy_node()
+
+    # ---- services and parameters ---------------------------------------------------------
 
     def _on_start(self, request, response):
         try:
             path = self.start()
-        except OSError as exc:
-            response.success, response.message = False, f'cannot open the bag: {exc}'
+        except BagError as exc:
+            response.success, response.message = False, exc.lines[0]
             return response
         response.success, response.message = True, str(path)
         return response
 
-    def drain(self, quiet: float = 0.2, limit: float = 5.0) -> None:
-        """Wait until no message arrived for ``quiet`` s (at most ``limit`` s), so that a
-        stop after the publishers went quiet (a paused or waiting simulator) loses nothing."""
-        end = time.monotonic() + limit
-        while time.monotonic() - self._last_rx < quiet and time.monotonic() < end:
-            time.sleep(0.02)
-
-    def _check_drained(self, quiet: float = 0.2, limit: float = 5.0) -> None:
-        now = time.monotonic()
-        for fut, t0 in list(self._drain_waiters):
-            if now - self._last_rx >= quiet or now - t0 >= limit:
-                self._drain_waiters.remove((fut, t0))
-                fut.set_result(True)
-
-    async def _on_stop(self, request, response):
-        # Wait (without blocking the executor, which keeps taking messages) until the
-        # publishers have gone quiet, then close.
-        fut = Future()
-        self._drain_waiters.append((fut, time.monotonic()))
-        await fut
+    def _on_stop(self, request, response):
         done = self.stop()
         response.success = done is not None
         response.message = f'{done[0]} ({done[1]} messages)' if done else 'not recording'
         return response
 
+    def _on_ready(self, request, response):
+        """Ready when every recorded topic has a matched publisher: an experiment that
+        starts after this loses nothing to discovery."""
+        matched = set(self.matched())
+        waiting = [t for t in self.topics if t not in matched]
+        response.success = not waiting
+        response.message = ('waiting for a publisher on ' + ', '.join(waiting) if waiting
+                            else 'all topics matched')
+        return response
+
+    def _on_set_parameters(self, params):
+        return bridge.result(bridge.refusal(self.schema_specs, params))
+
+    def _publish_diagnostics(self) -> None:
+        with self._lock:
+            s = self._session
+            values = {'recording': s is not None}
+            if s is not None:
+                lost = sum(s.lost.values())
+                values.update({'bag': str(s.path), 'messages': s.writer.count,
+                               'buffered': s.seq.buffered if s.seq else len(s.early),
+                               'late': s.seq.late if s.seq else 0, 'lost': lost,
+                               'time_base': s.seq.mode if s.seq else 'deciding'})
+        lost = values.get('lost', 0)
+        st = DiagnosticStatus(name='recorder', hardware_id='hydropump',
+                              level=DiagnosticStatus.WARN if lost else DiagnosticStatus.OK,
+                              message=f'{lost} messages lost' if lost else
+                              ('recording' if values['recording'] else 'idle'),
+                              values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+        self._pub_diag.publish(DiagnosticArray(status=[st]))
+
 
 def main(args=None) -> int:
-    # Signals are handled here, not by rclpy, so that SIGINT and SIGTERM can first take what
-    # is still queued and then close the bag while the context is alive.
-    from rclpy.signals import SignalHandlerOptions
-    try:
-        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    except Exception as exc:  # rclpy raises RCLError for a bad command line
-        print(f'error: cannot start: {exc}', file=sys.stderr)
-        return 2
-    node = RecorderNode()
-    # One thread takes every message in arrival order; rclpy's multi-threaded executor
-    # loses messages at the suite's 10 kHz message rate (measured in bench/bench_ros.py).
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    stop = threading.Event()
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    spinner = threading.Thread(target=executor.spin, daemon=True)
-    spinner.start()
-    try:
-        stop.wait()
-        node.drain(quiet=0.2, limit=10.0)
-        node.stop()
-    finally:
-        executor.shutdown(timeout_sec=2.0)
-        spinner.join(timeout=2.0)
-        node.halt()
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return entry.run(RecorderNode, prog='recorder', doc=__doc__,
+                     specs=lambda: specs_of(RecorderConfig), args=args)
 
 
 if __name__ == '__main__':
-    sys.exit(main())
+    raise SystemExit(main())

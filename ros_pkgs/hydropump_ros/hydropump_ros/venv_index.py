@@ -50,9 +50,14 @@ def install(root: Path, prefix: Path) -> list[Path]:
                 dst.unlink()
             elif dst.is_dir():
                 shutil.rmtree(dst)
-            # A link, as colcon's --symlink-install: the sources stay the one copy.
-            dst.symlink_to((src / sub).resolve(), target_is_directory=True)
-            written.append(dst)
+            # A folder of links to the files, as colcon's --symlink-install makes it: the
+            # sources stay the one copy, and ros2 launch, which walks the share folder
+            # without following links to folders, finds the launch files.
+            dst.mkdir()
+            for f in sorted((src / sub).resolve().iterdir()):
+                if f.is_file():
+                    (dst / f.name).symlink_to(f)
+                    written.append(dst / f.name)
         for exe in EXECUTABLES.get(pkg, ()):
             lib = prefix / 'lib' / pkg
             lib.mkdir(parents=True, exist_ok=True)

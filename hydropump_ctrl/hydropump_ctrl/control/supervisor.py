@@ -1,0 +1,329 @@
+"""What the controller node does around the control law, without ROS: :class:`Supervisor`.
+
+- **The measurement gate**: a sample that is not finite or not physical
+  (:data:`PLAUSIBLE`) is refused and counted; the controller predicts through it.
+- **The time rule** (:mod:`hydropump_ctrl.timebase`): wherever a ``/clock`` is present, an
+  update runs at every control instant ``t_K`` of simulation time once the measurements of
+  ``t_K`` are in (stamped ones carry ``t_K``, unstamped ones were published after the
+  ``/clock`` of ``t_K``), so a lock-step run is repeatable whatever order messages arrive in;
+  the command and the state carry ``t_K``. With no ``/clock`` at all a steady timer drives
+  the updates, stamped with the node's wall time. A jump back of simulation time (a new
+  simulator) drops the time state and restarts the law bumplessly at the next instant.
+- **The watchdogs** (steady clock, so a stopped ``/clock`` cannot hide a dead peer): no
+  measurement for ``watchdog.hold_timeout`` stops the updates (the plant holds the last
+  command); after ``watchdog.safe_timeout`` the safe current is commanded until
+  measurements come back, then the law restarts bumplessly.
+- **Bumpless (re)start** through :meth:`Controller.reset` from the measurements.
+- **Live parameters**: checked against the schema and the configuration, applied at the next
+  update.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+import math
+import time
+from typing import Any
+
+from hydropump_sim.schema import group, ParamError, replace, spec
+
+from ..timebase import TimeBase
+from . import make_controller
+from .schema import ControllerConfig, validate_parameter
+
+# Plausible ranges of the measurements as the nodes publish them (SI, absolute pressures):
+# outside them a sample is a sensor fault.
+PLAUSIBLE = {'line_flow': (-0.1, 0.1), 'pump_flow': (-0.1, 0.1), 'load_flow': (-0.1, 0.1),
+             'solenoid_current': (0.0, 10.0), 'line_pressure': (0.0, 1.0e8),
+             'load_pressure': (0.0, 1.0e8), 'actuator_pressure': (0.0, 1.0e8)}
+STATE_KEYS = ('reference', 'estimate', 'disturbance', 'command', 'command_desired')
+
+
+@dataclass(frozen=True)
+class Watchdog:
+    """Group ``watchdog``: the steady-clock watchdog on the measurements."""
+
+    hold_timeout: float = spec('s', 'steady-clock age of the measurements after which updates '
+                               'stop (the last command holds)', 0.01, 60.0, default=0.2,
+                               live=True)
+    safe_timeout: float = spec('s', 'steady-clock age after which the safe current is '
+                               'commanded', 0.01, 600.0, default=1.0, live=True)
+
+    def cross_checks(self) -> list[str]:
+        if self.safe_timeout < self.hold_timeout:
+            return [f'watchdog.safe_timeout = {self.safe_timeout:g} s must not be shorter than '
+                    f'watchdog.hold_timeout = {self.hold_timeout:g} s']
+        return []
+
+
+@dataclass(frozen=True)
+class ControllerNodeConfig:
+    """The controller node's own parameters (the law's are :class:`ControllerConfig`)."""
+
+    config_file: str = spec('path', 'controller params file (from hydropump design); empty = '
+                            'config/controller.yaml', default='')
+    autostart: bool = spec('-', 'configure and activate at start-up', default=False)
+    watchdog: Watchdog = group(factory=Watchdog)
+
+
+@dataclass(frozen=True)
+class Output:
+    """A command to publish: the time it answers [ns], the current [A], the state."""
+
+    stamp_ns: int | None      # None: no simulation time yet (the node stamps wall time)
+    command: float
+    state: Mapping[str, Any] = field(default_factory=dict)
+
+
+Log = Callable[[str, str], None]
+
+
+def _print_log(level: str, text: str) -> None:
+    print(f'[{level}] {text}')
+
+
+class Supervisor:
+    """The controller node's logic (see the module); every method returns an :class:`Output`
+    to publish, or ``None``.
+
+    Parameters
+    ----------
+    config : ControllerConfig
+    watchdog : Watchdog
+    clock : callable
+        Steady clock [s] (tests pass a fake one).
+    log : callable(level, text)
+    """
+
+    #: Steady time [s] after a control instant after which an update uses the latest values,
+    #: for a free-running simulator whose samples may never carry ``t_K`` exactly.
+    STALE_WAIT = 0.02
+    THROTTLE = 2.0
+
+    def __init__(self, config: ControllerConfig, watchdog: Watchdog = Watchdog(), *,
+                 clock: Callable[[], float] = time.monotonic, log: Log = _print_log):
+        self.config = config
+        self.watchdog = watchdog
+        self._clock = clock
+        self._log = log
+        self._warned: dict[str, float] = {}
+        self.ctrl = make_controller(config)
+        self.period_ns = int(round(config.period * 1e9))
+        self.time = TimeBase()
+        self.counts = {'updates': 0, 'rejected_nan': 0, 'rejected_range': 0,
+                       'stale_updates': 0, 'watchdog_safe': 0, 'control_errors': 0,
+                       'time_jumps': 0}
+        self.active = False
+        self.mode_state = 'running'
+        self._pending: ControllerConfig | None = None
+        self._last_rx: float | None = None
+        self._clear_time()
+
+    def _clear_time(self) -> None:
+        self._meas: dict[str, float] = {}
+        self._stamp: dict[str, int] = {}     # stamped topics: header stamp [ns]
+        self._src: dict[str, int] = {}       # unstamped topics: source timestamp [ns]
+        self._due: int | None = None
+        self._due_wall = 0.0
+        self._t_prev: int | None = None      # last update: sim ns, or steady ns (wall mode)
+        self._needs_reset = True
+
+    def _warn(self, key: str, text: str, level: str = 'warn') -> None:
+        now = self._clock()
+        if now - self._warned.get(key, -math.inf) >= self.THROTTLE:
+            self._warned[key] = now
+            self._log(level, text)
+
+    # ---- lifecycle -----------------------------------------------------------------------
+
+    def activate(self) -> Output | None:
+        """Start commanding; the first update restarts the law from the measurements."""
+        self._needs_reset = True
+        self._t_prev = None
+        self.active = True
+        return self._maybe_update()
+
+    def deactivate(self) -> None:
+        self.active = False
+
+    # ---- inputs --------------------------------------------------------------------------
+
+    def measurement(self, topic: str, value: float, *, stamp_ns: int | None = None,
+                    source_ns: int | None = None) -> Output | None:
+        """A measurement sample (SI, absolute pressures): with its header stamp, or, for an
+        unstamped topic, its DDS source timestamp."""
+        self._last_rx = self._clock()
+        lo, hi = PLAUSIBLE.get(topic, (-math.inf, math.inf))
+        if not math.isfinite(value):
+            self.counts['rejected_nan'] += 1
+            self._warn(f'nan {topic}', f'rejected {topic} = {value!r}')
+            self._meas.pop(topic, None)
+        elif not lo <= value <= hi:
+            self.counts['rejected_range'] += 1
+            self._warn(f'range {topic}', f'rejected {topic} = {value:.6g}: outside '
+                                         f'[{lo:g}, {hi:g}]')
+            self._meas.pop(topic, None)
+        else:
+            self._meas[topic] = value
+        if stamp_ns is not None:
+            self._stamp[topic] = stamp_ns
+        elif source_ns is not None:
+            self._src[topic] = source_ns
+        return self._maybe_update()
+
+    def clock(self, sim_ns: int, source_ns: int) -> Output | None:
+        """A ``/clock`` sample with its source timestamp."""
+        jump = self.time.on_clock(sim_ns, source_ns)
+        if jump is not None:
+            self.counts['time_jumps'] += 1
+            self._log('warn', f'{jump.describe()}: restarting the control law from the '
+                              'measurements')
+            self._clear_time()
+        if sim_ns % self.period_ns == 0 and (self._t_prev is None or sim_ns > self._t_prev):
+            self._due = sim_ns
+            self._due_wall = self._clock()
+        return self._maybe_update()
+
+    def wall_tick(self, now_ns: int) -> Output | None:
+        """The steady timer's tick (no ``/clock`` in the graph): update with the latest
+        values, stamped ``now_ns`` (the node's wall time)."""
+        if self.time.present or not self._running():
+            return None
+        if not all(t in self._meas for t in self._required()):
+            return None  # nothing to control on yet (no simulator, no sensors)
+        steady_ns = int(self._clock() * 1e9)
+        dt = ((steady_ns - self._t_prev) * 1e-9 if self._t_prev is not None
+              else self.config.period)
+        self._t_prev = steady_ns
+        return self._update(now_ns, dt)
+
+    def check_watchdog(self) -> Output | None:
+        """Run the watchdog (call it every few tens of ms); may command the safe current."""
+        if not self.active or self._last_rx is None:
+            return None
+        age = self._clock() - self._last_rx
+        safe = self.config.limits.safe_current
+        if age > self.watchdog.safe_timeout:
+            if self.mode_state != 'safe':
+                self._log('error', f'no measurements for {age:.2f} s: commanding the safe '
+                                   f'current {safe:g} A')
+            self.mode_state = 'safe'
+            self.counts['watchdog_safe'] += 1
+            return Output(self.time.latest, float(safe), self._state(safe))
+        if age > self.watchdog.hold_timeout:
+            if self.mode_state == 'running':
+                self._log('warn', f'measurements stale ({age:.2f} s): holding the command')
+            self.mode_state = 'hold'
+        elif self.mode_state != 'running':
+            self._log('info', 'measurements are back: resuming')
+            self._needs_reset = True
+            self._t_prev = None
+            self.mode_state = 'running'
+        return None
+
+    def set_reference(self, value: float) -> str | None:
+        """The reference of the present mode (SI); a refusal's reason, or ``None``."""
+        try:
+            self.ctrl.set_reference(value)
+        except ValueError as exc:
+            return str(exc)
+        return None
+
+    def set_parameters(self, values: Mapping[str, Any]) -> str | None:
+        """Live controller (``emc.*``, ``reference.*``, ...) or ``watchdog.*`` parameters,
+        applied at the next update; the reason of a refusal, or ``None``."""
+        law = {k: v for k, v in values.items() if not k.startswith('watchdog.')}
+        for name, value in law.items():
+            reason = validate_parameter(self.config, name, value)
+            if reason:
+                return reason
+        wd = {k.removeprefix('watchdog.'): v for k, v in values.items()
+              if k.startswith('watchdog.')}
+        try:
+            new = self.config.replace(law) if law else self.config
+            dog = replace(self.watchdog, wd) if wd else self.watchdog
+        except ParamError as exc:
+            return exc.lines[0]
+        if dog.cross_checks():
+            return dog.cross_checks()[0]
+        self.watchdog = dog
+        if law:
+            self.config = new
+            self._pending = new
+        return None
+
+    # ---- updates -------------------------------------------------------------------------
+
+    def _running(self) -> bool:
+        return self.active and self.mode_state == 'running'
+
+    def _required(self) -> tuple[str, ...]:
+        flow = self.config.controller.flow_signal
+        if self._needs_reset:  # a bumpless (re)start needs the whole operating point
+            return (flow, 'line_pressure', 'load_pressure')
+        mode = self.ctrl.mode
+        if mode == 'flow':
+            return (flow,)
+        if mode == 'margin':
+            return ('line_pressure', 'load_pressure')
+        return ()
+
+    def _fresh(self, topic: str, due: int) -> bool:
+        """Has ``topic`` delivered its sample of the instant ``due``?"""
+        if topic in self._stamp:
+            return self._stamp[topic] >= due
+        src = self._src.get(topic)
+        return src is not None and self.time.after(due, src)
+
+    def _maybe_update(self) -> Output | None:
+        due = self._due
+        if due is None or not self._running():
+            return None
+        fresh = all(self._fresh(t, due) for t in self._required())
+        if not fresh and self._clock() - self._due_wall < self.STALE_WAIT:
+            return None
+        if not fresh:
+            self.counts['stale_updates'] += 1
+        self._due = None
+        dt = (due - self._t_prev) * 1e-9 if self._t_prev is not None else self.config.period
+        self._t_prev = due
+        return self._update(due, dt)
+
+    def _update(self, stamp_ns: int, dt: float) -> Output:
+        if self._needs_reset:
+            self.ctrl.reset(None, dict(self._meas))
+            self._needs_reset = False
+        if self._pending is not None:
+            try:
+                self.ctrl.set_config(self._pending)
+            except (ParamError, ValueError) as exc:
+                self._log('error', f'parameter change not applied: {exc}')
+            self._pending = None
+        try:
+            u = self.ctrl.update(stamp_ns * 1e-9, dt, self._meas)
+        except (ArithmeticError, ValueError) as exc:
+            # Never crash the loop: say so, command the safe current and restart bumplessly.
+            self.counts['control_errors'] += 1
+            self._warn('law', f'control law failed ({type(exc).__name__}: {exc}); safe '
+                              'current, restarting', 'error')
+            u = self.config.limits.safe_current
+            self._needs_reset = True
+        self.counts['updates'] += 1
+        return Output(stamp_ns, float(u), self.ctrl.state())
+
+    def _state(self, command: float) -> dict[str, Any]:
+        st = dict(self.ctrl.state())
+        st['command'] = command
+        return st
+
+    def diagnostics(self) -> dict[str, Any]:
+        """A snapshot for ``/diagnostics``."""
+        age = (self._clock() - self._last_rx) if self._last_rx is not None else math.nan
+        state = self.ctrl.state()
+        return {'active': self.active, 'watchdog': self.mode_state,
+                'measurement_age_s': age, 'clock': 'simulation' if self.time.present
+                else 'wall', **self.counts,
+                **{k: state.get(k) for k in ('mode', 'algorithm', 'reference', 'command',
+                                             'fault')}}
+

@@ -1,0 +1,288 @@
+"""rosbag2 bags as rosbag2 Jazzy writes them (MCAP storage), without rosbag2.
+
+A bag is a folder ``<bag>/`` holding ``<bag>_0.mcap`` and, once closed, ``metadata.yaml``
+(version 9). Written with Foxglove's ``mcap`` writer, to rosbag2's layout:
+
+- MCAP header profile ``ros2``; one schema per type (``ros2msg``, the full concatenated
+  definition) and one channel per topic (``cdr``), whose metadata holds
+  ``offered_qos_profiles`` (a YAML list, one profile per publisher, as rosbag2 records them
+  from the graph) and ``topic_type_hash`` (``RIHS01_...``);
+- a ``rosbag2`` metadata record with ``serialized_metadata`` written at open and again at
+  close, so that ``ros2 bag reindex`` rebuilds ``metadata.yaml`` of a bag whose recorder was
+  killed (it finds ``<name>_<N>.mcap`` files only);
+- chunks closed at fixed periods of log time (data-dependent, so two identical runs give
+  identical files), zstd-compressed or not (``compression: zstd | none``, as rosbag2's MCAP
+  presets do: ``metadata.yaml`` then still says ``compression_format: ""``);
+- ``metadata.yaml`` in yaml-cpp's block layout, written atomically at close, with
+  ``ros_distro: jazzy`` and ``custom_data`` (string to string).
+
+Every problem a user can cause (an existing or unwritable folder) is a :class:`BagError`.
+Nothing here imports ROS.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+import functools
+import os
+from pathlib import Path
+import re
+from typing import Any
+
+from mcap.writer import CompressionType, Writer
+
+from hydropump_sim.errors import HydropumpError
+
+INT64_MAX = 2 ** 63 - 1
+INFINITE = {'sec': 9223372036, 'nsec': 854775807}   # RMW_DURATION_INFINITE
+ROS_DISTRO = 'jazzy'
+CHUNK_SIZE = 768 * 1024                             # rosbag2's MCAP default
+COMPRESSION = {'none': CompressionType.NONE, 'zstd': CompressionType.ZSTD}
+
+
+class BagError(HydropumpError, OSError):
+    """A bag that cannot be written as asked."""
+
+
+def qos_profile(history: str = 'unknown', depth: int = 0, reliability: str = 'reliable',
+                durability: str = 'volatile', liveliness: str = 'automatic',
+                deadline: Mapping | None = None, lifespan: Mapping | None = None,
+                lease: Mapping | None = None, avoid_ros_namespace_conventions: bool = False
+                ) -> dict[str, Any]:
+    """One offered QoS profile in rosbag2's version-9 layout (enum names in lower case,
+    durations as ``{sec, nsec}``, infinite by default)."""
+    return {'history': history, 'depth': int(depth), 'reliability': reliability,
+            'durability': durability, 'deadline': dict(deadline or INFINITE),
+            'lifespan': dict(lifespan or INFINITE), 'liveliness': liveliness,
+            'liveliness_lease_duration': dict(lease or INFINITE),
+            'avoid_ros_namespace_conventions': bool(avoid_ros_namespace_conventions)}
+
+
+# ---- yaml-cpp's block layout ---------------------------------------------------------------
+
+_PLAIN = re.compile(r'^[A-Za-z_/][A-Za-z0-9_./+\-]*$')
+_TYPED = re.compile(r'^(?:true|false|yes|no|on|off|null|y|n|~)$', re.IGNORECASE)
+
+
+def _scalar(v: Any) -> str:
+    if v is None:
+        return '~'
+    if isinstance(v, bool):
+        return 'true' if v else 'false'
+    if isinstance(v, int):
+        return str(v)
+    text = str(v)
+    if _PLAIN.match(text) and not _TYPED.match(text):
+        return text
+    return '"' + text.replace('\\', '\\\\').replace('"', '\\"').replace('\n', '\\n') + '"'
+
+
+def _block(node: Any, indent: int, out: list[str], lead: str | None = None) -> None:
+    pad = ' ' * indent
+    if isinstance(node, Mapping):
+        for i, (k, v) in enumerate(node.items()):
+            head = (lead if i == 0 and lead is not None else pad) + f'{_scalar(k)}:'
+            if isinstance(v, Mapping) and v:
+                out.append(head)
+                _block(v, indent + 2, out)
+            elif isinstance(v, (list, tuple)):
+                out.append(head)
+                if v:
+                    _block(v, indent + 2, out)
+                else:
+                    out.append(' ' * (indent + 2) + '[]')
+            elif isinstance(v, Mapping):
+                out.append(head + ' ~')
+            else:
+                out.append(f'{head} {_scalar(v)}')
+    else:
+        for item in node:
+            if isinstance(item, Mapping) and item:
+                _block(item, indent + 2, out, lead=pad + '- ')
+            else:
+                out.append(f'{pad}- {_scalar(item)}')
+
+
+def yaml_cpp(node: Any) -> str:
+    """YAML text in yaml-cpp's block layout, as rosbag2 writes it (no trailing newline)."""
+    if isinstance(node, (list, tuple)) and not node:
+        return '[]'
+    out: list[str] = []
+    _block(node, 0, out)
+    return '\n'.join(out)
+
+
+# ---- message definitions -------------------------------------------------------------------
+
+@functools.cache
+def _typestore():
+    from rosbags.typesys import get_typestore, Stores
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
+def message_definition(msgtype: str) -> tuple[str, str]:
+    """``(ros2msg text with its dependencies, RIHS01 type hash)`` of ``pkg/msg/Type``."""
+    store = _typestore()
+    try:
+        text, _ = store.generate_msgdef(msgtype, ros_version=2)
+        return text, store.hash_rihs01(msgtype)
+    except Exception as exc:  # rosbags raises its own errors for unknown types
+        raise BagError(f'message type {msgtype}: unknown to the bag writer ({exc})') from None
+
+
+# ---- the writer ----------------------------------------------------------------------------
+
+class BagWriter:
+    """Write one rosbag2 bag (see the module).
+
+    Parameters
+    ----------
+    path : path-like
+        The bag folder; it must not exist (a bag is never overwritten).
+    compression : {'zstd', 'none'}
+        MCAP chunk compression.
+    chunk_period : float
+        Close a chunk whenever log time crosses a multiple of this [s]: what a hard kill can
+        cost, and data-dependent, so identical runs give identical files.
+    custom_data : mapping of str to str, optional
+        ``custom_data`` of the metadata (more can be set before :meth:`close`).
+    """
+
+    def __init__(self, path: str | os.PathLike, *, compression: str = 'zstd',
+                 chunk_period: float = 0.25, custom_data: Mapping[str, str] | None = None):
+        if compression not in COMPRESSION:
+            raise BagError(f'compression = {compression!r}: use one of {", ".join(COMPRESSION)}')
+        self.path = Path(path)
+        self.file_name = f'{self.path.name}_0.mcap'
+        self.compression = compression
+        self._period_ns = max(1, int(round(chunk_period * 1e9)))
+        self.custom_data = {str(k): str(v) for k, v in (custom_data or {}).items()}
+        self.count = 0
+        self.start: int | None = None
+        self.end: int | None = None
+        self._topics: dict[str, dict] = {}
+        self._schemas: dict[str, int] = {}
+        self._chunk_end: int | None = None
+        self._fh = None
+        self._mcap: Writer | None = None
+
+    # ---- opening -------------------------------------------------------------------------
+
+    def open(self) -> BagWriter:
+        """Create the folder and the MCAP file; raise :class:`BagError` with the reason."""
+        if self.path.exists():
+            raise BagError(f'{self.path}: exists already (a bag is never overwritten)')
+        try:
+            self.path.mkdir(parents=True)
+            self._fh = open(self.path / self.file_name, 'xb')  # noqa: SIM115 - closed in close()
+        except OSError as exc:
+            raise BagError(f'{self.path}: cannot create the bag: {exc.strerror or exc}') \
+                from None
+        self._mcap = Writer(self._fh, chunk_size=CHUNK_SIZE,
+                            compression=COMPRESSION[self.compression])
+        self._mcap.start(profile='ros2', library='hydropump recorder (mcap)')
+        self._mcap.add_metadata('rosbag2', {'serialized_metadata': yaml_cpp(self._metadata())})
+        self._mcap.flush()
+        self._fh.flush()
+        return self
+
+    def __enter__(self) -> BagWriter:
+        return self.open() if self._mcap is None else self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def add_topic(self, name: str, msgtype: str,
+                  offered_qos_profiles: Sequence[Mapping[str, Any]] = ()) -> None:
+        """Register a topic (once) with its type and the QoS of its publishers."""
+        if name in self._topics:
+            return
+        text, type_hash = message_definition(msgtype)
+        if msgtype not in self._schemas:
+            self._schemas[msgtype] = self._mcap.register_schema(msgtype, 'ros2msg',
+                                                                text.encode())
+        profiles = [dict(p) for p in offered_qos_profiles]
+        channel = self._mcap.register_channel(
+            topic=name, message_encoding='cdr', schema_id=self._schemas[msgtype],
+            metadata={'offered_qos_profiles': yaml_cpp(profiles),
+                      'topic_type_hash': type_hash})
+        self._topics[name] = {'channel': channel, 'count': 0, 'meta': {
+            'name': name, 'type': msgtype, 'serialization_format': 'cdr',
+            'offered_qos_profiles': profiles, 'type_description_hash': type_hash}}
+
+    @property
+    def topics(self) -> list[str]:
+        return list(self._topics)
+
+    # ---- writing -------------------------------------------------------------------------
+
+    def write(self, topic: str, log_ns: int, data: bytes, publish_ns: int | None = None
+              ) -> None:
+        """One serialized message at log time ``log_ns`` [ns]."""
+        t = self._topics[topic]
+        if self._chunk_end is None:
+            self._chunk_end = (log_ns // self._period_ns + 1) * self._period_ns
+        elif log_ns >= self._chunk_end:
+            self.flush()
+            self._chunk_end = (log_ns // self._period_ns + 1) * self._period_ns
+        self._mcap.add_message(channel_id=t['channel'], log_time=log_ns, data=data,
+                               publish_time=log_ns if publish_ns is None else publish_ns,
+                               sequence=0)
+        t['count'] += 1
+        self.count += 1
+        self.start = log_ns if self.start is None else min(self.start, log_ns)
+        self.end = log_ns if self.end is None else max(self.end, log_ns)
+
+    def flush(self) -> None:
+        """Close the open chunk and hand it to the operating system."""
+        self._mcap.flush()
+        self._fh.flush()
+
+    def close(self) -> Path:
+        """Write the final metadata record, the summary and ``metadata.yaml``."""
+        if self._mcap is None:
+            return self.path
+        self._mcap.flush()
+        self._mcap.add_metadata('rosbag2',
+                                {'serialized_metadata': yaml_cpp(self._metadata(final=True))})
+        self._mcap.finish()
+        self._fh.close()
+        self._mcap = None
+        text = yaml_cpp({'rosbag2_bagfile_information': self._metadata(final=True)})
+        tmp = self.path / 'metadata.yaml.tmp'
+        tmp.write_text(text, encoding='utf-8')
+        os.replace(tmp, self.path / 'metadata.yaml')
+        return self.path
+
+    def _metadata(self, final: bool = False) -> dict[str, Any]:
+        start = self.start if final and self.start is not None else INT64_MAX
+        duration = (self.end - self.start) if final and self.start is not None else 0
+        count = self.count if final else 0
+        return {
+            'version': 9,
+            'storage_identifier': 'mcap',
+            'duration': {'nanoseconds': duration},
+            'starting_time': {'nanoseconds_since_epoch': start},
+            'message_count': count,
+            'topics_with_message_count': [{'topic_metadata': t['meta'],
+                                           'message_count': t['count'] if final else 0}
+                                          for t in self._topics.values()] if final else [],
+            'compression_format': '',
+            'compression_mode': '',
+            'relative_file_paths': [self.file_name],
+            'files': [{'path': self.file_name,
+                       'starting_time': {'nanoseconds_since_epoch': start},
+                       'duration': {'nanoseconds': duration}, 'message_count': count}],
+            'custom_data': dict(self.custom_data) or None,
+            'ros_distro': ROS_DISTRO,
+        }
+
+
+def unique_path(path: str | os.PathLike) -> Path:
+    """``path``, or ``path_1``, ``path_2``, ... if it exists (a bag is never overwritten)."""
+    path = Path(path)
+    base, n = path, 1
+    while path.exists():
+        path = base.with_name(f'{base.name}_{n}')
+        n += 1
+    return path

@@ -1,0 +1,213 @@
+"""The recorder's ordering: every message gets one log time, and leaves in log-time order.
+
+Log time follows the rule of time (:mod:`hydropump_ctrl.timebase`): in simulation time
+wherever a ``/clock`` is present (stamped messages: their header stamp; unstamped ones: the
+``/clock`` their publisher had sent before them), in receive wall time only where there is
+none; never a mix.
+
+Messages are released in ``(log time, topic, arrival)`` order, the topics in the order the
+recorder lists them, so two identical lock-step runs give byte-identical bags however the
+messages arrived. A message at log time ``T`` is released only once every recorded topic
+that is *active* has delivered something at or after ``T`` (a per-topic watermark): a topic
+is active from the moment it has a matched publisher (or its first message) until it has been
+silent for ``idle_timeout`` of steady time while the recorder was running. Time the recorder
+itself was stopped (frozen, starved of CPU) does not count as silence: a pass of the take
+loop that comes more than ``stall`` seconds after the previous one shifts every silence timer
+by the gap. So a frozen
+recorder that resumes sees its backlog, not idle topics.
+
+A message older than what was already released (a topic that was idle and came back late)
+is still written, and counted as ``late``. Nothing is ever dropped here.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+import heapq
+import time
+
+from ..timebase import Jump, TimeBase
+
+
+@dataclass(frozen=True)
+class Record:
+    """A message ready for the bag."""
+
+    log_ns: int
+    order: int          # the topic's place in the recorder's list
+    seq: int            # arrival order
+    topic: str
+    data: bytes
+    publish_ns: int     # DDS source timestamp
+
+    def key(self) -> tuple[int, int, int]:
+        return (self.log_ns, self.order, self.seq)
+
+
+class _Topic:
+    __slots__ = ('name', 'order', 'mark', 'pending', 'last_rx')
+
+    def __init__(self, name: str, order: int):
+        self.name = name
+        self.order = order
+        self.mark: int | None = None        # log time of the latest resolved message
+        self.pending: deque = deque()       # unstamped messages waiting for a later /clock
+        self.last_rx: float | None = None   # steady time of the latest message (or match)
+
+
+class Sequencer:
+    """Log times and release order of a recording (see the module).
+
+    Parameters
+    ----------
+    topics : sequence of str
+        The recorded topics, in release order for equal log times.
+    mode : {'sim', 'wall'}
+        The bag's time base.
+    idle_timeout : float
+        Steady seconds of silence after which a topic no longer holds the others back.
+    stall : float
+        A take-loop pass later than this after the previous one [s] is a stall of the
+        recorder, not silence of the topics.
+    clock : callable
+        Steady clock [s].
+    """
+
+    def __init__(self, topics: Sequence[str], mode: str = 'sim', *, idle_timeout: float = 1.0,
+                 stall: float = 0.05, clock: Callable[[], float] = time.monotonic):
+        if mode not in ('sim', 'wall'):
+            raise ValueError(f'mode {mode!r}: sim or wall')
+        self.mode = mode
+        self.time = TimeBase()
+        self._topics = {name: _Topic(name, i) for i, name in enumerate(topics)}
+        self._heap: list = []
+        self._seq = 0
+        self._released: int | None = None
+        self._idle = idle_timeout
+        self._stall = stall
+        self._clock = clock
+        self._last_pass: float | None = None
+        self.late = 0
+
+    # ---- input ---------------------------------------------------------------------------
+
+    def clock(self, sim_ns: int, source_ns: int) -> Jump | None:
+        """A ``/clock`` sample; a jump back is returned (the caller starts a new bag)."""
+        jump = self.time.on_clock(sim_ns, source_ns)
+        if jump is None:
+            for t in self._topics.values():
+                self._settle(t)
+        return jump
+
+    def message(self, topic: str, data: bytes, *, source_ns: int, stamp_ns: int | None = None,
+                receive_ns: int | None = None) -> None:
+        """A message of a recorded topic: its header stamp if it has one (sim mode), its
+        source timestamp, and its receive time (wall mode)."""
+        t = self._topics[topic]
+        t.last_rx = self._clock()
+        self._seq += 1
+        if self.mode == 'wall':
+            self._push(t, receive_ns, data, source_ns)
+        elif stamp_ns is not None:
+            self._push(t, stamp_ns, data, source_ns)
+        else:
+            t.pending.append((source_ns, self._seq, data))
+            self._settle(t)
+
+    def matched(self, topic: str) -> None:
+        """``topic`` has a matched publisher: from now on it holds the others back until it
+        delivers or has been silent for ``idle_timeout``."""
+        t = self._topics[topic]
+        if t.last_rx is None:
+            t.last_rx = self._clock()
+
+    def pass_done(self) -> None:
+        """Call after every pass of the take loop: detects the recorder's own stalls."""
+        now = self._clock()
+        if self._last_pass is not None and now - self._last_pass > self._stall:
+            gap = now - self._last_pass
+            for t in self._topics.values():
+                if t.last_rx is not None:
+                    t.last_rx += gap
+        self._last_pass = now
+
+    # ---- output --------------------------------------------------------------------------
+
+    def ready(self) -> Iterator[Record]:
+        """The records that may be written now, in order."""
+        w = self._watermark()
+        heap = self._heap
+        while heap and (w is None or heap[0][0] < w):
+            yield self._pop()
+
+    def drain(self) -> Iterator[Record]:
+        """Everything left, in order (at a stop): unstamped messages still waiting take the
+        latest ``/clock`` sent before them."""
+        for t in self._topics.values():
+            while t.pending:
+                src, seq, data = t.pending.popleft()
+                log = self.time.time_of(src)
+                self._push_at(t, log if log is not None else (self.time.latest or 0), seq, data,
+                              src)
+        while self._heap:
+            yield self._pop()
+
+    @property
+    def buffered(self) -> int:
+        """Messages held (waiting for their log time or for the other topics)."""
+        return len(self._heap) + sum(len(t.pending) for t in self._topics.values())
+
+    # ---- internals -----------------------------------------------------------------------
+
+    def _settle(self, t: _Topic) -> None:
+        tb = self.time
+        while t.pending and tb.settled(t.pending[0][0]):
+            src, seq, data = t.pending.popleft()
+            log = tb.time_of(src)
+            # Sent before the first /clock this recorder saw: it belongs to that one.
+            self._push_at(t, log if log is not None else tb.latest, seq, data, src)
+
+    def _push(self, t: _Topic, log_ns: int, data: bytes, source_ns: int) -> None:
+        self._push_at(t, log_ns, self._seq, data, source_ns)
+
+    def _push_at(self, t: _Topic, log_ns: int, seq: int, data: bytes, source_ns: int) -> None:
+        t.mark = log_ns if t.mark is None else max(t.mark, log_ns)
+        heapq.heappush(self._heap, (log_ns, t.order, seq, t.name, data, source_ns))
+
+    def _pop(self) -> Record:
+        log, order, seq, topic, data, src = heapq.heappop(self._heap)
+        if self._released is not None and log < self._released:
+            self.late += 1
+        else:
+            self._released = log
+        return Record(log, order, seq, topic, data, src)
+
+    def _marks(self) -> list[int | None]:
+        """The effective mark of every active topic (``None``: nothing resolved yet)."""
+        now = self._clock()
+        latest = self.time.latest
+        marks = []
+        for t in self._topics.values():
+            if t.last_rx is None or now - t.last_rx > self._idle:
+                continue  # no publisher yet, or silent: does not hold the others back
+            if t.pending:
+                # Its waiting messages are at or after the latest /clock.
+                marks.append(latest if t.mark is None else max(t.mark, latest or 0))
+            else:
+                marks.append(t.mark)
+        return marks
+
+    def _watermark(self) -> int | None:
+        """The log time below which every active topic has delivered; ``None``: no limit."""
+        if self.mode == 'wall':
+            return None
+        marks = self._marks()
+        if any(m is None for m in marks):
+            return -1  # an active topic with nothing resolved yet: wait
+        return min(marks) if marks else None
+
+    def complete(self, until_ns: int) -> bool:
+        """Has every active topic delivered up to ``until_ns`` (a stop's last instant)?"""
+        return all(m is not None and m >= until_ns for m in self._marks())

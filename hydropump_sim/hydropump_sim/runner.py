@@ -1,0 +1,419 @@
+"""What a simulator node does, without ROS: :class:`Runner` and its :class:`SimulatorConfig`.
+
+The :class:`~hydropump_sim.Simulator` owns simulation time; the runner decides when it may
+advance and what it holds while it does:
+
+- **the command**: a current command is checked (a non-finite value is refused and counted, a
+  value outside eq. 2 is clamped by the Simulator and counted) and held (zero-order hold);
+- **the command watchdog** (steady clock, paced and free runs): with no command for
+  ``command_timeout`` the safe current applies until commands come back;
+- **the lock-step gate**: at every control instant the runner waits (steady clock, at most
+  ``lock_step_timeout``) for a command newer than the last one it used, so that one
+  exchange advances exactly one control period;
+- **pause, pause-at and reset**: a paused runner does not advance; ``pause_at`` pauses once
+  when simulation time reaches it; reset returns to the initial equilibrium (time runs on);
+- **pacing** to a real-time factor, with period statistics;
+- **the sensor models** of the profile and the scheduled inputs of a scenario.
+
+The stepping thread calls :meth:`Runner.run` with a *sink* (an object with ``current(t,
+value)`` and ``measurement(frame)``); every other method may be called from any thread: the
+changes they ask for are applied by the stepping thread between two increments, so the
+integrator never sees an input change inside one.
+
+Order of one step ``t_k -> t_k+1``: the gate (pause, lock-step command for ``t_k``), the
+inputs held from ``t_k`` (watchdog, scenario), ``sink.current`` (the applied current held
+from ``t_k``), pacing, one increment, ``sink.measurement`` (the signals of ``t_k+1``).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+import math
+import threading
+import time
+from typing import Any, Protocol
+
+import numpy as np
+
+from .measure import efforts, limit_flags, true_signals, velocities
+from .params import Params
+from .schema import fmt, replace, spec
+from .sensors import SensorBank, SensorProfile
+from .simulate import IntegrationError, Simulator
+
+# Plant parameters that change the held inputs while running (the operating point).
+LIVE_INPUTS = {'line.P_u': 'load_pressure', 'line.xi_u': 'aperture', 'pump.f_p': 'shaft_speed'}
+
+
+def _rates(dt: float, n: int = 6) -> str:
+    """The first publish rates that divide ``1/dt``, for a message."""
+    return ', '.join(fmt(1.0 / (k * dt)) for k in range(1, n + 1))
+
+
+@dataclass(frozen=True)
+class SimulatorConfig:
+    """The simulator node's own parameters (the plant and the sensors have their schemas)."""
+
+    params_file: str = spec('path', 'plant params file; empty = config/pump.yaml', default='')
+    sensor_profile: str = spec('path', 'sensor profile file (e.g. config/bench.yaml); empty = '
+                               'ideal sensors', default='')
+    scenario_file: str = spec('path', 'load pressure, aperture and shaft speed scheduled in '
+                              'simulation time (hydropump simulate format); empty = none',
+                              default='')
+    dt: float = spec('s', 'integration increment (inputs are held over it)', 1.0e-5, 0.01,
+                     default=1.0e-3)
+    publish_rate: float = spec('Hz', 'measurement rate: 1/dt divided by a whole number',
+                               1.0, 1.0e5, default=1000.0)
+    real_time_factor: float = spec('-', 'pacing: simulated s per wall s; 0 = as fast as '
+                                   'possible', 0.0, 1000.0, default=1.0, live=True)
+    lock_step: bool = spec('-', 'advance one control period per controller command',
+                           default=False)
+    control_period: float = spec('s', 'lock-step period (the controller update period): a '
+                                 'whole number of dt', 1.0e-4, 1.0, default=0.005)
+    lock_step_timeout: float = spec('s', 'steady-clock wait for a command in lock-step before '
+                                    'advancing anyway', 1.0e-3, 600.0, default=1.0, live=True)
+    command_timeout: float = spec('s', 'steady-clock age of the last command after which the '
+                                  'safe current applies (paced and free runs)', 1.0e-3, 600.0,
+                                  default=0.5, live=True)
+    safe_current: float = spec('A', 'current applied when commands stop; 0 = the current of '
+                               '0 % displacement', 0.0, 5.0, default=0.0, live=True)
+    initial_current: float = spec('A', 'current of the initial equilibrium; 0 = the current '
+                                  'of 50 % displacement', 0.0, 5.0, default=0.0)
+    diagnostics_period: float = spec('s', 'period of /diagnostics (steady clock)', 0.1, 60.0,
+                                     default=1.0)
+    start_paused: bool = spec('-', 'wait for ~/pause false before publishing t = 0, so that '
+                              'every peer is matched first', default=False)
+    pause_at: float = spec('s', 'pause once simulation time reaches this (experiments end at '
+                           'an exact instant); 0 = never', 0.0, 1.0e6, default=0.0, live=True)
+
+    @property
+    def publish_every(self) -> int:
+        """Increments per published step."""
+        return max(1, int(round(1.0 / (self.publish_rate * self.dt))))
+
+    @property
+    def steps_per_period(self) -> int:
+        """Increments per control period (lock-step)."""
+        return max(1, int(round(self.control_period / self.dt)))
+
+    def cross_checks(self) -> list[str]:
+        out = []
+        n = 1.0 / (self.publish_rate * self.dt)
+        if n < 1.0 - 1e-9:
+            out.append(f'publish_rate = {fmt(self.publish_rate)} Hz: faster than 1/dt = '
+                       f'{fmt(1.0 / self.dt)} Hz (dt = {fmt(self.dt)} s); use one of '
+                       f'{_rates(self.dt)} Hz')
+        elif abs(n - round(n)) > 1e-6 * n:
+            lo, hi = math.floor(n), math.ceil(n)
+            out.append(f'publish_rate = {fmt(self.publish_rate)} Hz: 1/dt = '
+                       f'{fmt(1.0 / self.dt)} Hz is not a whole multiple of it; the nearest '
+                       f'rates are {fmt(1.0 / (hi * self.dt))} and {fmt(1.0 / (lo * self.dt))} '
+                       f'Hz')
+        m = self.control_period / self.dt
+        if abs(m - round(m)) > 1e-6 * m or round(m) < 1:
+            out.append(f'control_period = {fmt(self.control_period)} s: not a whole number of '
+                       f'dt = {fmt(self.dt)} s')
+        return out
+
+    def plant_checks(self, params: Params) -> list[str]:
+        """Relations with the plant: the currents lie inside eq. 2."""
+        lo, hi = params.I_limits
+        return [f'{name} = {fmt(v)} A: outside the current range of eq. 2, [{fmt(lo)}, '
+                f'{fmt(hi)}] A (0 = the default)'
+                for name, v in (('safe_current', self.safe_current),
+                                ('initial_current', self.initial_current))
+                if v != 0.0 and not lo <= v <= hi]
+
+
+@dataclass(frozen=True)
+class Frame:
+    """The measurements of one published step (SI; pressures gauge, as the model has them).
+
+    ``signals`` are through the sensor models where the profile has one; ``velocities`` and
+    ``efforts`` are the ``joint_states`` extras of the spool and the plate.
+    """
+
+    t: float
+    signals: Mapping[str, float]
+    velocities: tuple[float, float]
+    efforts: tuple[float, float]
+
+
+class Sink(Protocol):
+    def current(self, t: float, value: float) -> None: ...
+
+    def measurement(self, frame: Frame) -> None: ...
+
+
+Log = Callable[[str, str], None]
+
+
+def _print_log(level: str, text: str) -> None:
+    print(f'[{level}] {text}')
+
+
+class Runner:
+    """Steps a :class:`~hydropump_sim.Simulator` as the simulator node does (see the module).
+
+    Parameters
+    ----------
+    sim : Simulator
+        The plant; the runner resets it to its initial equilibrium.
+    cfg : SimulatorConfig
+    profile : SensorProfile, optional
+        Sensor models (none: ideal sensors).
+    scenario : mapping of str to callable, optional
+        Inputs scheduled in simulation time (``load_pressure``, ``aperture``,
+        ``shaft_speed``), as :func:`hydropump_sim.scenario.load_scenario` gives them.
+    log : callable(level, text), optional
+        Where warnings go (a node passes its logger); levels ``info``, ``warn``, ``error``.
+    clock, sleep : callable
+        Steady clock [s] and sleep, for the watchdog, the gates and pacing (tests pass fakes).
+    """
+
+    THROTTLE = 1.0  # s between two repeats of the same warning
+
+    def __init__(self, sim: Simulator, cfg: SimulatorConfig, *,
+                 profile: SensorProfile | None = None,
+                 scenario: Mapping[str, Callable] | None = None, log: Log = _print_log,
+                 clock: Callable[[], float] = time.monotonic,
+                 sleep: Callable[[float], None] = time.sleep):
+        self.sim = sim
+        self.params = sim.params
+        self.cfg = cfg
+        self.profile = profile or SensorProfile({})
+        self.scenario = {k: v for k, v in (scenario or {}).items() if k != 'current'}
+        self._log = log
+        self._clock = clock
+        self._sleep = sleep
+        self._cv = threading.Condition()
+        self.initial_current = cfg.initial_current or self.params.I_nominal
+        self._warned: dict[str, float] = {}
+        self._pending: dict[str, Any] = {}
+        self._stop = False
+        self._paused = cfg.start_paused
+        self._pause_armed = cfg.pause_at
+        self._failed: str | None = None
+        self.stats = {'nan_commands': 0, 'clamped_commands': 0, 'lock_step_timeouts': 0,
+                      'watchdog_trips': 0}
+        self._periods: deque = deque(maxlen=2000)
+        self._reset()
+
+    # ---- configuration -------------------------------------------------------------------
+
+    @property
+    def safe_current(self) -> float:
+        """The current applied when commands stop [A]."""
+        return self.cfg.safe_current or self.params.current_range[0]
+
+    @property
+    def paused(self) -> bool:
+        return self._paused
+
+    @property
+    def failed(self) -> str | None:
+        """Why stepping stopped (an integration failure), or ``None``."""
+        return self._failed
+
+    def _reset(self) -> None:
+        """Back to the initial equilibrium; simulation time keeps running after the start."""
+        self.sim.reset(self.initial_current, keep_time=self.sim.steps > 0)
+        self.sensors = SensorBank(self.profile, self.sim.dt * self.cfg.publish_every)
+        self._sensed = {sig for sig in self.sensors.channels if self.profile.spec(sig).active}
+        self._current = self.initial_current
+        self._cmd_seq = 0
+        self._cmd_used = 0
+        self._last_cmd: float | None = None
+        self._watchdog = False
+        self._y = self.sim.outputs()
+
+    def _warn(self, key: str, text: str, level: str = 'warn') -> None:
+        now = self._clock()
+        if now - self._warned.get(key, -math.inf) >= self.THROTTLE:
+            self._warned[key] = now
+            self._log(level, text)
+
+    # ---- requests (any thread) -----------------------------------------------------------
+
+    def command(self, value: float) -> None:
+        """A current command [A, absolute]: held from the next increment."""
+        with self._cv:
+            if not math.isfinite(value):
+                self.stats['nan_commands'] += 1
+                self._warn('nan', f'ignored non-finite current command {value!r}; holding '
+                                  f'{self._current:.4g} A')
+                return
+            lo, hi = self.params.I_limits
+            if not lo <= value <= hi:
+                self.stats['clamped_commands'] += 1
+                self._warn('clamp', f'current command {value:.4g} A outside the range of eq. '
+                                    f'2, [{lo:.3g}, {hi:.3g}] A: clamped')
+            self._current = value
+            self._cmd_seq += 1
+            self._last_cmd = self._clock()
+            if self._watchdog:
+                self._log('info', 'commands are back: watchdog released')
+                self._watchdog = False
+            self._cv.notify_all()
+
+    def set_paused(self, paused: bool) -> None:
+        with self._cv:
+            self._paused = bool(paused)
+            self._cv.notify_all()
+
+    def reset(self) -> None:
+        """Return to the initial equilibrium before the next increment (time keeps running)."""
+        with self._cv:
+            self._pending['reset'] = True
+            self._cv.notify_all()
+
+    def set_parameter(self, name: str, value: Any) -> None:
+        """A live change: an operating-point input (``line.P_u``, ``line.xi_u``, ``pump.f_p``)
+        or a live field of :class:`SimulatorConfig`; applied before the next increment."""
+        with self._cv:
+            if name in LIVE_INPUTS:
+                self._pending.setdefault('inputs', {})[LIVE_INPUTS[name]] = float(value)
+            else:
+                self.cfg = replace(self.cfg, {name: value})
+                if name == 'pause_at':
+                    self._pause_armed = value
+            self._cv.notify_all()
+
+    def stop(self) -> None:
+        with self._cv:
+            self._stop = True
+            self._cv.notify_all()
+
+    # ---- the stepping thread -------------------------------------------------------------
+
+    def run(self, sink: Sink) -> None:
+        """Step until :meth:`stop`; publish through ``sink`` (see the module)."""
+        with self._cv:
+            while self._paused and not self._stop:
+                self._cv.wait(0.1)
+        self._emit(sink)
+        next_wall = self._clock()
+        last_wall = None
+        every = self.cfg.publish_every
+        while True:
+            with self._cv:
+                if not self._gate():
+                    return
+                self._inputs()
+                if self._resumed:
+                    next_wall, last_wall = self._clock(), None
+            if self.sim.steps % every == 0:
+                sink.current(self.sim.t, self._applied_current())
+            rtf = self.cfg.real_time_factor
+            if rtf > 0.0 and not self.cfg.lock_step:
+                next_wall += self.sim.dt / rtf
+                delay = next_wall - self._clock()
+                if delay > 0.0:
+                    self._sleep(delay)
+                elif delay < -0.1:
+                    next_wall = self._clock()  # far behind: do not try to catch up
+            now = self._clock()
+            if last_wall is not None:
+                self._periods.append(now - last_wall)
+            last_wall = now
+            try:
+                self.sim.step()
+            except IntegrationError as exc:
+                with self._cv:
+                    self._failed = str(exc)
+                self._log('error', f'{exc}; call ~/reset to restart')
+                continue
+            if self.sim.steps % every == 0:
+                self._emit(sink)
+
+    def _gate(self) -> bool:
+        """Wait (under the lock) until the next increment may run; False when stopping."""
+        self._resumed = False
+        if self._pending.pop('reset', False):
+            self._reset()
+            self._failed = None
+        pause_at = self._pause_armed
+        if pause_at > 0.0 and self.sim.t >= pause_at - 0.5 * self.sim.dt:
+            self._pause_armed = 0.0  # once: resuming at that instant does not pause again
+            self._paused = True
+        while (self._paused or self._failed) and not self._stop:
+            self._resumed = True
+            self._cv.wait(0.1)
+            if self._pending.pop('reset', False):
+                self._reset()
+                self._failed = None
+        if self._stop:
+            return False
+        if self.cfg.lock_step and self.sim.steps % self.cfg.steps_per_period == 0:
+            deadline = self._clock() + self.cfg.lock_step_timeout
+            while self._cmd_seq <= self._cmd_used and not self._stop:
+                left = deadline - self._clock()
+                if left <= 0.0:
+                    self.stats['lock_step_timeouts'] += 1
+                    self._warn('lockstep', 'lock-step: no command within lock_step_timeout; '
+                                           'advancing with the held current')
+                    break
+                self._cv.wait(left)
+            self._cmd_used = self._cmd_seq
+            self._resumed = True
+        return not self._stop
+
+    def _inputs(self) -> None:
+        """The inputs held from ``t_k``: command (or the watchdog's safe current), the live
+        changes asked for, the scenario."""
+        current = self._current
+        if (self._last_cmd is not None and not self.cfg.lock_step
+                and self._clock() - self._last_cmd > self.cfg.command_timeout):
+            if not self._watchdog:
+                self._watchdog = True
+                self.stats['watchdog_trips'] += 1
+                self._log('warn', f'no current command for {self.cfg.command_timeout:g} s: '
+                                  f'applying the safe current {self.safe_current:.4g} A')
+            current = self.safe_current
+        self.sim.set_inputs(current=current, **self._pending.pop('inputs', {}))
+        if self.scenario:
+            self.sim.set_inputs(**{name: float(sig(self.sim.t))
+                                   for name, sig in self.scenario.items()})
+
+    def _sense(self, name: str, value: float) -> float:
+        return self.sensors.channels[name].update(value) if name in self._sensed else value
+
+    def _applied_current(self) -> float:
+        """The current held from this step on, dither and sensor model included [A]."""
+        if self.params.input.dither_amp:
+            value = float(self.sim.outputs()[0])
+        else:
+            value = self.params.I_nominal + float(self.sim.u[0])
+        return self._sense('solenoid_current', value)
+
+    def _emit(self, sink: Sink) -> None:
+        y = self.sim.outputs()
+        self._y = y
+        true = true_signals(y, self.sim.u)
+        del true['solenoid_current']  # published before the increment, see _applied_current
+        signals = {k: self._sense(k, v) for k, v in true.items()}
+        sink.measurement(Frame(self.sim.t, signals, velocities(y), efforts(self.params, y)))
+
+    # ---- diagnostics (any thread) --------------------------------------------------------
+
+    def diagnostics(self) -> dict[str, Any]:
+        """A snapshot for ``/diagnostics``: limits, integrator, command, pacing."""
+        with self._cv:
+            periods = np.array(self._periods)
+            age = (self._clock() - self._last_cmd) if self._last_cmd is not None else math.nan
+            snap = {'flags': limit_flags(self.params, self._y), 'stats': dict(self.stats),
+                    'failed': self._failed, 'paused': self._paused, 'watchdog': self._watchdog,
+                    'command_age': age, 'applied_current': self._current}
+        rtf = self.cfg.real_time_factor
+        snap['sim_time'] = self.sim.t
+        snap['accepted_steps'], snap['rejected_steps'] = (int(v) for v in self.sim.stats)
+        snap['achieved_rtf'] = (self.sim.dt / float(np.mean(periods))) if periods.size \
+            else math.nan
+        snap['period_error_p99'] = (float(np.percentile(np.abs(periods - self.sim.dt / rtf),
+                                                        99))
+                                    if periods.size and rtf > 0 and not self.cfg.lock_step
+                                    else math.nan)
+        return snap
+

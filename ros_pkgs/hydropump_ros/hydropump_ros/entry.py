@@ -1,0 +1,169 @@
+"""Start-up and shutdown of every node's ``main()``, as ROS users start and stop them.
+
+- ``rclpy.init`` problems (a missing ``--params-file``) and bad parameters end with one
+  ``error:`` line per problem and exit code 2, never a traceback.
+- ``--help`` (before ``--ros-args``) prints the node's parameters and exits.
+- SIGINT, a second SIGINT (``ros2 launch`` forwards a terminal's Ctrl-C, so each node gets
+  two), and SIGTERM each end the node with exit code 0 and no traceback, at any moment,
+  start-up included: the executables' entry points (:func:`simulator`, :func:`controller`,
+  :func:`recorder`) install the handlers before the heavy imports; rclpy's own handlers are
+  never installed. The first signal asks the node to stop, later ones are ignored. The
+  executor spins in a thread while the main thread waits for the signal, then the node's
+  ``close()`` stops its own work (stepping thread, take loop, open bag) *before* the executor
+  and the context go, so nothing publishes on a dead context.
+
+This module stays light (no rclpy, no numerics at import): it runs first.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+import importlib
+import signal
+import sys
+import threading
+import traceback
+
+# Set by SIGINT or SIGTERM: the process is asked to end.
+STOP = threading.Event()
+
+
+def install_signal_handlers() -> threading.Event:
+    """SIGINT and SIGTERM set :data:`STOP` (again and again, harmlessly); returns it."""
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: STOP.set())
+    return STOP
+
+
+def _launch(module: str) -> int:
+    install_signal_handlers()
+    try:
+        mod = importlib.import_module(f'hydropump_ros.{module}')
+    except KeyboardInterrupt:  # a Ctrl-C before our handlers were in place
+        return 0
+    return mod.main()
+
+
+def simulator() -> int:
+    """Entry point of ``ros2 run hydropump_ros simulator``."""
+    return _launch('simulator_node')
+
+
+def controller() -> int:
+    """Entry point of ``ros2 run hydropump_ros controller``."""
+    return _launch('controller_node')
+
+
+def recorder() -> int:
+    """Entry point of ``ros2 run hydropump_ros recorder``."""
+    return _launch('recorder_node')
+
+
+def log(logger, level: str, text: str) -> None:
+    """Log ``text`` at ``level`` (``info``, ``warn``, ``error``) from the pure libraries.
+
+    rclpy ties a severity to each calling line, so each level has its own line here.
+    """
+    if level == 'error':
+        logger.error(text)
+    elif level == 'warn':
+        logger.warning(text)
+    else:
+        logger.info(text)
+
+
+def _help(prog: str, doc: str, specs: Iterable) -> str:
+    from hydropump_sim.schema import default_text
+    lines = [f'usage: ros2 run hydropump_ros {prog} [--ros-args -p NAME:=VALUE ...]', '',
+             doc.strip().splitlines()[0], '', 'parameters (SI units):']
+    for s in specs:
+        live = ', live' if s.live else ''
+        lines.append(f'  {s.name} = {default_text(s)}  [{s.unit}{live}]  {s.desc}')
+    return '\n'.join(lines)
+
+
+def run(factory: Callable[[], object], *, prog: str, doc: str,
+        specs: Callable[[], Iterable], args: list[str] | None = None,
+        before_spin: Callable[[object], None] | None = None) -> int:
+    """Run a node to completion; return the process exit code.
+
+    Parameters
+    ----------
+    factory : callable
+        Builds the node (after ``rclpy.init``); may raise :class:`StartupError`.
+    prog, doc, specs :
+        Executable name, description and parameter schema, for ``--help``.
+    args : list of str, optional
+        Command line (default ``sys.argv``).
+    before_spin : callable(node), optional
+        Runs before the executor spins, in this thread (e.g. a lifecycle node's autostart).
+    """
+    argv = list(sys.argv if args is None else args)
+    own = argv[1:argv.index('--ros-args')] if '--ros-args' in argv else argv[1:]
+    if '-h' in own or '--help' in own:
+        print(_help(prog, doc, specs()))
+        return 0
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.signals import SignalHandlerOptions
+
+    from .bridge import StartupError
+    stop = install_signal_handlers()
+    if stop.is_set():
+        return 0
+    try:
+        rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    except Exception as exc:  # rclpy raises RCLError, with no public class to catch
+        print(f'error: cannot start: {" ".join(str(exc).split())}', file=sys.stderr)
+        return 2
+    install_signal_handlers()  # again: whatever rclpy.init did to the dispositions
+    try:
+        node = factory()
+    except StartupError as exc:
+        for line in exc.lines:
+            print(f'error: {line}', file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
+    # A node may end itself (a fatal problem found after start-up): it sets ``exit_code``
+    # and calls ``request_shutdown()``.
+    node.request_shutdown = stop.set
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    failure: list[BaseException] = []
+    spinner = threading.Thread(target=_spin, args=(executor, stop, failure), name='executor',
+                               daemon=True)
+    try:
+        if before_spin is not None:
+            before_spin(node)
+        spinner.start()
+        while not stop.wait(0.5):
+            pass
+    finally:
+        close = getattr(node, 'close', None)
+        if close is not None:
+            close()
+        executor.shutdown(timeout_sec=2.0)
+        if spinner.is_alive():
+            spinner.join(timeout=2.0)
+        node.destroy_node()
+        # Keep our handlers: a second Ctrl-C during the rest of the exit must not kill us.
+        if rclpy.ok():
+            rclpy.shutdown(uninstall_handlers=False)
+    # Python's finalisation puts the default disposition back for a Python handler (not for
+    # SIG_IGN), and DDS threads still run then: a late Ctrl-C would kill the process (exit
+    # code -2). From here on the signals are ignored.
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, signal.SIG_IGN)
+    if failure:  # a bug in a callback: show it whole
+        traceback.print_exception(failure[0])
+        return 1
+    return getattr(node, 'exit_code', 0)
+
+
+def _spin(executor, stop: threading.Event, failure: list) -> None:
+    try:
+        executor.spin()
+    except Exception as exc:  # an exception out of a callback ends the node
+        if not stop.is_set():
+            failure.append(exc)
+            stop.set()

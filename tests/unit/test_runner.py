@@ -1,0 +1,218 @@
+"""The simulator node's logic without DDS: the Runner's gate, watchdog, pause-at, reset,
+command checks, pacing order and its configuration checks."""
+
+import math
+import threading
+
+import numpy as np
+import pytest
+
+from hydropump_sim import equilibrium, simulate, Simulator
+from hydropump_sim.runner import Runner, SimulatorConfig
+from hydropump_sim.schema import build, ParamError
+from hydropump_sim.sensors import profile_from_dict
+
+
+class FakeClock:
+    """A steady clock that advances by ``tick`` at every reading."""
+
+    def __init__(self, tick=0.0):
+        self.t = 0.0
+        self.tick = tick
+
+    def __call__(self):
+        self.t += self.tick
+        return self.t
+
+    def sleep(self, s):
+        self.t += s
+
+
+class Sink:
+    """Collects what the runner publishes; stops it after ``n`` measurements; ``on_frame``
+    runs on each one (e.g. a stand-in controller)."""
+
+    def __init__(self, runner, n, on_frame=None):
+        self.runner = runner
+        self.n = n
+        self.on_frame = on_frame
+        self.events = []
+        self.frames = []
+
+    def current(self, t, value):
+        self.events.append(('current', t, value))
+
+    def measurement(self, frame):
+        self.events.append(('measurement', frame.t))
+        self.frames.append(frame)
+        if self.on_frame:
+            self.on_frame(self, frame)
+        if len(self.frames) >= self.n:
+            self.runner.stop()
+
+
+def cfg(**kw):
+    return build(SimulatorConfig, kw)
+
+
+def run(runner, sink, timeout=60.0):
+    th = threading.Thread(target=runner.run, args=(sink,), daemon=True)
+    th.start()
+    th.join(timeout)
+    assert not th.is_alive(), 'the runner did not stop'
+
+
+def test_publish_rate_must_divide_the_step_rate():
+    with pytest.raises(ParamError, match=r'publish_rate = 400 Hz.*nearest rates are 333\.333 '
+                                         r'and 500 Hz'):
+        cfg(publish_rate=400.0)
+    with pytest.raises(ParamError, match=r'publish_rate = 10000 Hz: faster than 1/dt = 1000 '
+                                         r'Hz.*1000, 500, 333\.333'):
+        cfg(publish_rate=10000.0)
+    with pytest.raises(ParamError, match='control_period = 0.0055 s: not a whole number'):
+        cfg(control_period=0.0055)
+    assert cfg(publish_rate=250.0).publish_every == 4
+    assert cfg(dt=1e-4, publish_rate=10000.0).publish_every == 1
+
+
+def test_currents_are_checked_against_eq_2(params):
+    lo, hi = params.I_limits
+    assert cfg(safe_current=hi + 0.1).plant_checks(params)[0].startswith('safe_current = ')
+    assert not cfg().plant_checks(params)
+    r = Runner(Simulator(params), cfg())
+    assert r.safe_current == pytest.approx(params.current_range[0])
+    assert r.initial_current == pytest.approx(params.I_nominal)
+
+
+def test_free_run_matches_simulate_and_publishes_current_before_the_step(params):
+    r = Runner(Simulator(params), cfg(real_time_factor=0.0, initial_current=0.46))
+    r.command(0.54)
+    sink = Sink(r, 201)
+    run(r, sink)
+    t = np.array([f.t for f in sink.frames])
+    np.testing.assert_allclose(t, np.arange(201) * 1e-3, atol=1e-12)
+    # Per step: the applied current of t_k, then the measurements of t_k+1.
+    assert sink.events[0] == ('measurement', 0.0)
+    assert sink.events[1][0] == 'current' and sink.events[1][1] == 0.0
+    assert sink.events[2] == ('measurement', pytest.approx(1e-3))
+    # The same plant offline: from the equilibrium at 0.46 A, 0.54 A held from t = 0.
+    ref = simulate(params, 0.2, 0.54, x0=equilibrium(params, 0.46).x, dt_out=1e-3)
+    q = np.array([f.signals['line_flow'] for f in sink.frames])
+    np.testing.assert_allclose(q, ref.q_l, rtol=1e-6, atol=1e-12)
+
+
+def test_nan_commands_are_refused_and_out_of_range_clamped(params):
+    logs = []
+    r = Runner(Simulator(params), cfg(real_time_factor=0.0),
+               log=lambda lvl, txt: logs.append((lvl, txt)))
+    r.command(math.nan)
+    assert r.stats['nan_commands'] == 1
+    r.command(5.0)
+    assert r.stats['clamped_commands'] == 1
+    sink = Sink(r, 2)
+    run(r, sink)
+    lo, hi = params.I_limits
+    assert r.sim.u[0] + params.I_nominal == pytest.approx(hi)
+    assert any('non-finite' in t for _, t in logs) and any('clamped' in t for _, t in logs)
+
+
+def test_command_watchdog_applies_the_safe_current_and_releases(params):
+    clock = FakeClock(tick=0.0)
+    r = Runner(Simulator(params), cfg(real_time_factor=0.0, command_timeout=0.5),
+               clock=clock, sleep=clock.sleep)
+    r.command(0.6)
+    applied = []
+
+    def on_frame(sink, frame):
+        clock.t += 0.01  # 10 ms of wall time per step
+        applied.append(r.sim.u[0] + params.I_nominal)
+        if len(sink.frames) == 80:
+            r.command(0.6)
+
+    sink = Sink(r, 100, on_frame)
+    run(r, sink)
+    applied = np.array(applied)
+    # 0.5 s after the command (50 steps of 10 ms) the safe current holds, until step 80.
+    assert applied[45] == pytest.approx(0.6)
+    assert np.allclose(applied[55:79], r.safe_current)
+    assert applied[85] == pytest.approx(0.6)
+    assert r.stats['watchdog_trips'] == 1
+
+
+def test_lock_step_advances_one_period_per_command(params):
+    r = Runner(Simulator(params), cfg(lock_step=True, lock_step_timeout=30.0))
+    seen = []
+
+    def on_frame(sink, frame):
+        k = int(round(frame.t / 0.005 * 1e3)) / 1e3
+        if k == int(k):  # a control instant: answer once, as a controller does
+            seen.append(frame.t)
+            r.command(0.5)
+
+    sink = Sink(r, 51, on_frame)
+    run(r, sink)
+    assert r.stats['lock_step_timeouts'] == 0
+    assert len(seen) == 11 and seen[-1] == pytest.approx(0.05)
+
+
+def test_lock_step_without_commands_times_out_and_counts(params):
+    r = Runner(Simulator(params), cfg(lock_step=True, lock_step_timeout=0.01))
+    sink = Sink(r, 11)
+    run(r, sink)
+    assert r.stats['lock_step_timeouts'] == 2  # at t = 0 and t = 5 ms
+
+
+def test_pause_at_pauses_once_and_resumes(params):
+    r = Runner(Simulator(params), cfg(real_time_factor=0.0, pause_at=0.01))
+    sink = Sink(r, 10_000)
+    th = threading.Thread(target=r.run, args=(sink,), daemon=True)
+    th.start()
+    for _ in range(2000):
+        if r.paused:
+            break
+        threading.Event().wait(0.005)
+    assert r.paused and r.sim.steps == 10
+    r.set_paused(False)
+    sink.n = len(sink.frames) + 20
+    th.join(30)
+    assert not th.is_alive() and r.sim.steps >= 30
+
+
+def test_reset_returns_to_equilibrium_and_time_runs_on(params):
+    r = Runner(Simulator(params), cfg(real_time_factor=0.0, initial_current=0.46))
+    x0 = r.sim.x.copy()
+
+    def on_frame(sink, frame):
+        if len(sink.frames) == 5:
+            r.command(0.7)
+        if len(sink.frames) == 60:
+            r.reset()
+
+    sink = Sink(r, 62, on_frame)
+    run(r, sink)
+    assert sink.frames[-1].t == pytest.approx(0.061)
+    # One increment after the reset the state is close to the initial equilibrium again.
+    assert sink.frames[-1].signals['actuator_position'] == pytest.approx(x0[2], abs=2e-5)
+
+
+def test_live_inputs_apply_before_the_next_increment(params):
+    r = Runner(Simulator(params), cfg(real_time_factor=0.0))
+
+    def on_frame(sink, frame):
+        if len(sink.frames) == 3:
+            r.set_parameter('line.xi_u', 0.3)
+
+    sink = Sink(r, 5, on_frame)
+    run(r, sink)
+    assert r.sim.u[2] == pytest.approx(0.3)
+
+
+def test_sensor_models_act_on_the_published_signals(params):
+    prof = profile_from_dict({'sensors': {'line_flow': {'quantum': 1e-5}, 'seed': 3}})
+    r = Runner(Simulator(params), cfg(real_time_factor=0.0), profile=prof)
+    sink = Sink(r, 20)
+    run(r, sink)
+    q = np.array([f.signals['line_flow'] for f in sink.frames])
+    assert np.allclose(q / 1e-5, np.round(q / 1e-5))
+    p = np.array([f.signals['pump_flow'] for f in sink.frames])
+    assert not np.allclose(p / 1e-5, np.round(p / 1e-5))
