@@ -49,7 +49,8 @@ class NodeProcess:
         return self.proc.returncode
 
     def log(self) -> str:
-        self._log.flush()
+        if not self._log.closed:
+            self._log.flush()
         return self.log_path.read_text()
 
 
@@ -99,8 +100,15 @@ class LockStepDriver:
         self.t = 0.0
         self.active = True
         self._msg = Float64
+        self.node = node
         self.pub = node.create_publisher(Float64, topic, 10)
-        node.create_subscription(Clock, '/clock', self._on_clock, 100)
+        self.sub = node.create_subscription(Clock, '/clock', self._on_clock, 100)
+
+    def destroy(self) -> None:
+        """Leave the graph (a later run must not see this publisher)."""
+        self.active = False
+        self.node.destroy_publisher(self.pub)
+        self.node.destroy_subscription(self.sub)
 
     def kick(self) -> None:
         """Answer the instant t = 0 if its /clock went by before this node matched."""

@@ -63,8 +63,8 @@ def test_no_command_before_activation_then_bumpless_start(nodes, test_node):
 
 def test_flow_step_end_to_end_in_lock_step_with_the_bench_profile(nodes, test_node):
     """30 -> 70 % flow step through the real nodes, bench sensors (55 ms flow delay, noise,
-    quantisation, dither): the targets of docs/control.md on the true pump flow (from the plate stroke,
-    averaged over the dither period as the paper filters it)."""
+    quantisation, dither): the targets of docs/control.md on the true pump flow (from the plate
+    stroke, averaged over the dither period as the paper filters it)."""
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
     p = load_params(PUMP_YAML)

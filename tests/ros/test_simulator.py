@@ -114,7 +114,7 @@ def test_pause_reset_and_live_parameters(nodes, test_node):
     from sensor_msgs.msg import FluidPressure
     from std_msgs.msg import Float64
     from std_srvs.srv import SetBool, Trigger
-    sim = nodes.start('simulator', '-p', 'real_time_factor:=0.0')
+    nodes.start('simulator', '-p', 'real_time_factor:=0.0')
     clock, line, flow = [], [], []
     test_node.create_subscription(Clock, '/clock', clock.append, 10)
     test_node.create_subscription(FluidPressure, 'line_pressure', line.append, 10)
@@ -142,12 +142,14 @@ def test_pause_reset_and_live_parameters(nodes, test_node):
             parameters=[Parameter(name=name, value=v)])).results[0]
 
     bad = set_param('line.xi_u', 2.0)
-    assert not bad.successful and 'line.xi_u' in bad.reason and 'Max: 1.0' in bad.reason
+    assert not bad.successful and bad.reason.startswith('line.xi_u = 2 -: outside the '
+                                                        'accepted range [0, 1]')
+    # The reason that ros2 param set prints carries the unit hint.
     bar = set_param('line.P_u', 120.0)
-    assert not bar.successful and 'line.P_u' in bar.reason
+    assert not bar.successful and 'looks like a value in bar: 120 bar = 1.2e+07 Pa' in \
+        bar.reason
     ro = set_param('spool.m_c', 0.005)
     assert not ro.successful and 'read-only' in ro.reason  # plant parameters are read-only
-    assert 'looks like a value in bar' in sim.log()  # the node log carries the unit hint
     p_before = line[-1].fluid_pressure
     assert set_param('line.xi_u', 0.25).successful
     t_set = now()

@@ -59,6 +59,19 @@ def recorder() -> int:
     return _launch('recorder_node')
 
 
+def dds_profile() -> None:
+    """Point Fast DDS at the suite's writer settings (``config/fastdds.xml``: a fast
+    heartbeat and a longer blocking time for keep-all writers), unless the environment names
+    a profile file already."""
+    import os
+    if os.environ.get('FASTRTPS_DEFAULT_PROFILES_FILE'):
+        return
+    from hydropump_sim.params import default_params_path
+    path = default_params_path().with_name('fastdds.xml')
+    if path.is_file():
+        os.environ['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(path)
+
+
 def log(logger, level: str, text: str) -> None:
     """Log ``text`` at ``level`` (``info``, ``warn``, ``error``) from the pure libraries.
 
@@ -111,6 +124,7 @@ def run(factory: Callable[[], object], *, prog: str, doc: str,
     stop = install_signal_handlers()
     if stop.is_set():
         return 0
+    dds_profile()
     try:
         rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     except Exception as exc:  # rclpy raises RCLError, with no public class to catch

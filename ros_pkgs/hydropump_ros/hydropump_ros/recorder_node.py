@@ -129,7 +129,10 @@ class _Session:
                 continue
             if r.topic not in w.topics:
                 w.add_topic(r.topic, self.node.types[r.topic], self.node.offered_qos(r.topic))
-            w.write(r.topic, r.log_ns, r.data, r.publish_ns)
+            # One clock in a bag: in simulation time the publish time is the log time too
+            # (a wall-clock send time beside it would mix clocks, and differ between runs).
+            w.write(r.topic, r.log_ns, r.data,
+                    r.log_ns if self.seq.mode == 'sim' else r.publish_ns)
 
     def complete(self) -> bool:
         """Has every active topic delivered up to the stop time?"""
@@ -165,7 +168,8 @@ class RecorderNode(bridge.ExplainedParameters, Node):
         self._lock = threading.RLock()
         self._session: _Session | None = None
         self._closed: list[tuple[Path, int]] = []
-        self._stop_request: tuple[float, threading.Event] | None = None
+        # (deadline, done, swept): a stop in progress, see _take_loop
+        self._stop_request: tuple[float, threading.Event, bool] | None = None
         self.topics = [self.resolve_topic_name(n) for n in self.cfg.topics]
         self.types: dict[str, str] = {}
         self._qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
@@ -239,28 +243,42 @@ class RecorderNode(bridge.ExplainedParameters, Node):
     def _take_loop(self) -> None:
         batch = self.cfg.take_batch
         while not self._halt.is_set():
-            got = 0
             with self._lock:
-                s = self._session
-                for sub, topic, stamped in self._subs:
-                    for _ in range(batch):
-                        taken = sub.handle.take_message(sub.msg_type, True)
-                        if taken is None:
-                            break
-                        got += 1
-                        if s is not None:
-                            s.message(topic, stamped, *taken)
-                for _ in range(batch):
-                    taken = self._clock_sub.handle.take_message(self._clock_sub.msg_type, True)
-                    if taken is None:
-                        break
-                    got += 1
-                    if s is not None:
-                        s = self._on_clock(s, *taken)
-                if s is not None:
-                    self._advance(s)
+                req = self._stop_request
+                if req is not None and not req[2]:
+                    # Stop: first everything DDS has delivered, then nothing after it.
+                    while self._take(10 ** 9) and time.monotonic() < req[0]:
+                        pass
+                    s = self._session
+                    if s is not None and s.seq is not None:
+                        s.stop_at = s.seq.time.latest
+                    self._stop_request = req = (req[0], req[1], True)
+                got = self._take(batch)
             if not got:
                 time.sleep(0.0005)
+
+    def _take(self, batch: int) -> int:
+        """One round-robin pass over the subscriptions, ``/clock`` last; what it took."""
+        got = 0
+        s = self._session
+        for sub, topic, stamped in self._subs:
+            for _ in range(batch):
+                taken = sub.handle.take_message(sub.msg_type, True)
+                if taken is None:
+                    break
+                got += 1
+                if s is not None:
+                    s.message(topic, stamped, *taken)
+        for _ in range(batch):
+            taken = self._clock_sub.handle.take_message(self._clock_sub.msg_type, True)
+            if taken is None:
+                break
+            got += 1
+            if s is not None:
+                s = self._on_clock(s, *taken)
+        if s is not None:
+            self._advance(s)
+        return got
 
     def _on_clock(self, s: _Session, data: bytes, info: dict) -> _Session:
         ns = _stamp(data)
@@ -284,6 +302,8 @@ class RecorderNode(bridge.ExplainedParameters, Node):
 
     def _advance(self, s: _Session) -> None:
         req = self._stop_request
+        if req is not None and not req[2]:
+            req = None  # the stop has not swept the queues yet
         if s.seq is None:
             wait = time.monotonic() - s.opened
             if s.early and wait > self.cfg.clock_wait and self._io.count_publishers(
@@ -330,10 +350,8 @@ class RecorderNode(bridge.ExplainedParameters, Node):
             s = self._session
             if s is None:
                 return None
-            if s.seq is not None and s.seq.time.latest is not None:
-                s.stop_at = s.seq.time.latest
             done = threading.Event()
-            self._stop_request = (time.monotonic() + limit, done)
+            self._stop_request = (time.monotonic() + limit, done, False)
         if not (self._taker.is_alive() and done.wait(limit + 1.0)):
             with self._lock:
                 if self._session is s:
