@@ -67,6 +67,11 @@ def _run(nodes, test_node, bag, until=0.4, schedule=None, period=0.005, during=N
     ``ros2 run`` starts it (no use_sim_time), a stand-in controller; ``during(test_node,
     driver, rec)`` runs while the simulation goes on. Returns after the recorder's ~/stop."""
     topics = '[' + ', '.join(('solenoid_current_cmd',) + SUITE) + ']'
+    # Publishers of an earlier test still in the graph would be listed in the bag's
+    # offered_qos_profiles.
+    spin_until(test_node, lambda: test_node.count_publishers('line_flow') == 0 and
+               test_node.count_publishers('solenoid_current_cmd') == 0, 30,
+               'the graph to forget earlier simulators')
     rec = nodes.start('recorder', '-p', f'output:={bag}', '-p', f'topics:={topics}')
     sim = nodes.start('simulator', '-p', 'lock_step:=true', '-p', 'lock_step_timeout:=60.0',
                       '-p', 'initial_current:=0.46', '-p', 'start_paused:=true',
@@ -194,11 +199,6 @@ def _runs(nodes, test_node, tmp_path, during=None, n=1):
         driver.destroy()
         sim.stop()
         rec.stop()
-        # The next run starts once the graph has forgotten this one's publishers (they
-        # would be listed in offered_qos_profiles).
-        spin_until(test_node, lambda: test_node.count_publishers('line_flow') == 0 and
-                   test_node.count_publishers('solenoid_current_cmd') == 0, 30,
-                   'the stopped simulator to leave the graph')
         bags.append(bag)
     return bags
 

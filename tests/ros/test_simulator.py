@@ -188,8 +188,10 @@ def test_bad_commands_and_watchdog(nodes, test_node):
     def settle(value, what):
         spin_until(test_node, lambda: applied and abs(applied[-1].data - value) < 1e-9, 20, what)
 
-    pub.publish(Float64(data=0.55))
-    settle(0.55, 'the commanded current')
+    # Until the simulator has matched this publisher, a command may be lost: repeat it, as a
+    # controller does every period.
+    spin_until(test_node, lambda: pub.publish(Float64(data=0.55)) or (
+        applied and abs(applied[-1].data - 0.55) < 1e-9), 20, 'the commanded current')
     pub.publish(Float64(data=math.nan))
     pub.publish(Float64(data=math.inf))
     pub.publish(Float64(data=2.0))
