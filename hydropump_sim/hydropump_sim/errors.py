@@ -38,3 +38,7 @@ class HydropumpError(Exception):
 
     def __reduce__(self):
         return (type(self), (self.lines, self.source))
+
+
+class InputError(HydropumpError, ValueError):
+    """A bad argument to a library function (a duration, a grid, a signal out of range)."""

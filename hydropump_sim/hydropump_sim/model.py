@@ -154,3 +154,14 @@ def outputs(t: float, x, u, params: Params, model: str = 'fine', branch: str | N
     y = np.empty(c.N_Y)
     c.evaluate(float(t), x, np.asarray(u, dtype=float), p, np.empty_like(x), y)
     return dict(zip(OUTPUTS, y.tolist()))
+
+
+def pump_flow(params: Params, x_a, f_p: float | None = None) -> np.ndarray:
+    """Pump flow ``Q_p`` of eq. 8 [m^3/s] for plate positions ``x_a`` [m] (array or number),
+    in the parameters' ``flow_map`` reading, with ``disp_clip``; ``f_p`` [Hz] defaults to the
+    parameter file's shaft speed."""
+    p = pack(params)
+    f = params.pump.f_p if f_p is None else float(f_p)
+    x = np.asarray(x_a, dtype=float)
+    out = np.array([c.pump_flow(float(v), f, p) for v in x.ravel()]).reshape(x.shape)
+    return out if out.ndim else float(out)
