@@ -62,7 +62,7 @@ _M = np.array([1.221224509226641, 6.019134481288629, 12.53708332932087, -0.68788
                1.0, 1.0])
 
 # Integration status codes.
-OK, FAIL_STEP, FAIL_NAN, FAIL_STEPS = 0, 1, 2, 3
+OK, FAIL_STEP, FAIL_NAN, FAIL_STEPS, FAIL_BUDGET = 0, 1, 2, 3, 4
 
 jit = numba.njit(cache=True, fastmath=False, nogil=True)
 
@@ -470,11 +470,12 @@ def advance(t0, t1, x, u, p, h, rtol, h_min, max_steps, stats):
 
 
 @jit
-def run(x0, t0, dt, U, p, rtol, h_min, max_steps, decim, Y, X, stats):
+def run(x0, t0, dt, U, p, rtol, h_min, max_steps, decim, Y, X, stats, max_total):
     """Integrate over ``len(U)`` increments of ``dt``, inputs ``U[k]`` held on each.
 
     Outputs are written every ``decim`` increments into ``Y`` (and states into ``X``), the
-    first row at ``t0``. Returns ``(status, increments done)``.
+    first row at ``t0``. ``max_total`` bounds the solver steps counted in ``stats`` (0: no
+    bound). Returns ``(status, increments done)``.
     """
     n_inc = U.shape[0]
     x = x0.copy()
@@ -488,6 +489,8 @@ def run(x0, t0, dt, U, p, rtol, h_min, max_steps, decim, Y, X, stats):
         h, status = advance(t, t + dt, x, U[k], p, h, rtol, h_min, max_steps, stats)
         if status != OK:
             return status, k
+        if max_total > 0 and stats[0] + stats[1] > max_total:
+            return FAIL_BUDGET, k + 1
         if (k + 1) % decim == 0:
             kk = min(k + 1, n_inc - 1)
             evaluate(t + dt, x, U[kk], p, dx, Y[row])

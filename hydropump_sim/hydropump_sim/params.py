@@ -15,20 +15,24 @@ import math
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from .schema import (
     build,
+    check_value,
     fmt,
     group,
     ParamError,
     ParamSpec,
     read_params_file,
     spec,
+    spec_map,
     specs_of,
     to_flat,
 )
 
-__all__ = ['Params', 'ParamError', 'default_params_path', 'iter_specs', 'load_params',
-           'params_from_dict']
+__all__ = ['INPUTS', 'Params', 'ParamError', 'check_input', 'default_params_path', 'input_spec',
+           'iter_specs', 'load_params', 'params_from_dict']
 
 
 @dataclass(frozen=True)
@@ -217,6 +221,35 @@ class Params:
 def iter_specs() -> Iterator[ParamSpec]:
     """Every plant parameter of the schema, in file order."""
     return iter(specs_of(Params))
+
+
+# The operating-point inputs of the model and the plant parameters whose ranges they share.
+INPUTS = {'load_pressure': 'line.P_u', 'aperture': 'line.xi_u', 'shaft_speed': 'pump.f_p'}
+
+
+def input_spec(name: str) -> ParamSpec:
+    """The schema entry of an operating-point input (``load_pressure``, ``aperture``,
+    ``shaft_speed``): its plant parameter's unit, range and description."""
+    return dataclasses.replace(spec_map(Params)[INPUTS[name]], name=name)
+
+
+def check_input(name: str, values, t=None) -> str | None:
+    """The first value of an input signal outside its accepted range, as one line naming
+    the value, the time and the range (with a unit hint); ``None`` when all are inside."""
+    s = input_spec(name)
+    v = np.atleast_1d(np.asarray(values, dtype=float))
+    lo, hi = s.range
+    bad = ~np.isfinite(v) | (v < lo) | (v > hi)
+    if not bad.any():
+        return None
+    k = int(np.flatnonzero(bad)[0])
+    _, err = check_value(s, float(v[k]))
+    if t is not None:
+        tk = float(np.atleast_1d(t)[k])
+        head, sep, tail = err.partition(': ')
+        err = f'{head} at t = {fmt(tk)} s{sep}{tail}'
+
+    return err
 
 
 def _cross_checks(p: Params) -> list[str]:

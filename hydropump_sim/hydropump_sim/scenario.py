@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from .errors import HydropumpError
-from .params import default_params_path, load_params, Params
+from .params import check_input, default_params_path, INPUTS, load_params, Params
 from .schema import ParamError, read_yaml
 
 SIGNALS = {
@@ -170,6 +170,23 @@ def parse_inputs(data: Any, errors: list[str]) -> dict[str, Signal]:
     return out
 
 
+def check_signals(inputs: dict[str, Signal], duration: float) -> list[str]:
+    """One line per operating-point input that leaves its accepted range (the range of its
+    plant parameter: ``line.P_u``, ``line.xi_u``, ``pump.f_p``) within ``duration`` [s];
+    the same check :func:`hydropump_sim.simulate` makes on its inputs."""
+    out = []
+    for name, sig in inputs.items():
+        if name not in INPUTS:
+            continue
+        n = int(min(duration / 1.0e-3, 2.0e5)) + 1
+        t = np.union1d(np.linspace(0.0, duration, n),
+                       [pt[0] for pt in sig.points if 0.0 <= pt[0] <= duration])
+        err = check_input(name, sig(t), t)
+        if err:
+            out.append(f'inputs.{err}')
+    return out
+
+
 def load_scenario(path: str | Path) -> Scenario:
     """Read and validate a scenario file.
 
@@ -200,6 +217,8 @@ def load_scenario(path: str | Path) -> Scenario:
     if model not in ('fine', 'simplified', 'simplified_Kc'):
         errors.append(f'model = {model!r}: use fine, simplified or simplified_Kc')
     inputs = parse_inputs(doc.get('inputs'), errors)
+    if duration is not None and duration > 0:
+        errors += check_signals(inputs, duration)
     params = None
     try:
         ppath = (path.parent / doc['params']) if 'params' in doc else default_params_path()

@@ -173,11 +173,17 @@ def fmt(v: float) -> str:
     return f'{v:.6g}'
 
 
+def with_unit(value: float, unit: str) -> str:
+    """``'120 Pa'``; a dimensionless value (unit ``-``) stands alone."""
+    return fmt(value) if unit in ('-', '') else f'{fmt(value)} {unit}'
+
+
 def range_text(s: ParamSpec) -> str:
     lo, hi = s.range
     lo_t = '-inf' if lo is None else fmt(lo)
     hi_t = 'inf' if hi is None else fmt(hi)
-    return f'[{lo_t}, {hi_t}] {s.unit}'.rstrip()
+    unit = '' if s.unit == '-' else s.unit
+    return f'[{lo_t}, {hi_t}] {unit}'.rstrip()
 
 
 def unit_hint(s: ParamSpec, value: float) -> str:
@@ -241,7 +247,7 @@ def check_value(s: ParamSpec, value: Any) -> tuple[Any, str | None]:
     if not math.isfinite(value):
         return None, f'{s.name} = {value!r}: not finite; expected {range_text(s)}'
     if not _inside(s, value):
-        return None, (f'{s.name} = {fmt(value)} {s.unit}: outside the accepted range '
+        return None, (f'{s.name} = {with_unit(value, s.unit)}: outside the accepted range '
                       f'{range_text(s)} ({s.desc}){unit_hint(s, value)}')
     return value, None
 

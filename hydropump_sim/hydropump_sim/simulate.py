@@ -12,14 +12,15 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 import math
 from pathlib import Path
+import time
 from typing import Union
 
 import numpy as np
 
 from . import _core as c
-from .errors import HydropumpError
+from .errors import HydropumpError, InputError
 from .model import INPUTS, OUTPUT_UNITS, OUTPUTS, pack, state_names
-from .params import Params
+from .params import check_input, Params
 from .trim import equilibrium, operating_inputs
 
 Signal = Union[float, Callable[[float], float], None]
@@ -40,6 +41,11 @@ class IntegratorConfig:
     rtol: float = 1.0e-5
     h_min: float = 1.0e-10
     max_steps: int = 20000
+    #: Solver steps per simulated second before a run is refused as too stiff (a nominal run
+    #: takes about 10^4; a parameter set near the ends of its ranges can take 10^6).
+    steps_per_second: float = 2.0e5
+    #: Wall time [s] after which simulate() gives up.
+    time_budget: float = 30.0
 
 
 @dataclass
@@ -105,11 +111,11 @@ def _sample(signal: Signal, default: float, t: np.ndarray, name: str) -> np.ndar
         try:
             v = np.full(t.shape, float(signal))
         except (TypeError, ValueError):
-            raise ValueError(f'{name} must be a number or a function of time, got '
+            raise InputError(f'{name} must be a number or a function of time, got '
                              f'{signal!r}') from None
     if not np.all(np.isfinite(v)):
         k = int(np.flatnonzero(~np.isfinite(v))[0])
-        raise ValueError(f'{name} is not finite at t = {t[k]:.6g} s')
+        raise InputError(f'{name} is not finite at t = {t[k]:.6g} s')
     return v
 
 
@@ -128,25 +134,37 @@ def input_table(params: Params, t: np.ndarray, current: Signal, load_pressure: S
     U[:, c.U_PU] = _sample(load_pressure, u0[c.U_PU], t, 'load_pressure')
     U[:, c.U_XI] = _sample(aperture, u0[c.U_XI], t, 'aperture')
     U[:, c.U_FP] = _sample(shaft_speed, u0[c.U_FP], t, 'shaft_speed')
-    for col, name, lo_, hi_ in ((c.U_XI, 'aperture', 0.0, 1.0),
-                                (c.U_FP, 'shaft_speed', 0.0, 200.0),
-                                (c.U_PU, 'load_pressure', -params.fluid.p_atm, 5.0e7)):
-        bad = (U[:, col] < lo_) | (U[:, col] > hi_)
-        if bad.any():
-            k = int(np.flatnonzero(bad)[0])
-            raise ValueError(f'{name} = {U[k, col]:.6g} at t = {t[k]:.6g} s is outside '
-                             f'[{lo_:.6g}, {hi_:.6g}]')
+    # The operating-point inputs take the ranges of their plant parameters.
+    for col, name in ((c.U_PU, 'load_pressure'), (c.U_XI, 'aperture'),
+                      (c.U_FP, 'shaft_speed')):
+        err = check_input(name, U[:, col], t)
+        if err:
+            raise InputError(err)
     return U, n_clamped
+
+
+# The largest time grid simulate() builds: output samples and held-input increments.
+MAX_SAMPLES = 20_000_000
 
 
 def _grid(duration: float, dt_out: float, dt_max: float) -> tuple[int, int, float]:
     """Output points, increments per output and increment length."""
-    if not (isinstance(duration, (int, float)) and math.isfinite(duration) and duration > 0):
-        raise ValueError(f'duration must be a positive number of seconds, got {duration!r}')
-    if not (math.isfinite(dt_out) and 0 < dt_out <= duration):
-        raise ValueError(f'dt_out must be in (0, duration], got {dt_out!r}')
-    n_out = int(round(duration / dt_out))
+    if not (isinstance(duration, (int, float)) and not isinstance(duration, bool)
+            and math.isfinite(duration) and duration > 0):
+        raise InputError(f'duration = {duration!r}: expected a positive number of seconds')
+    if not (isinstance(dt_out, (int, float)) and math.isfinite(dt_out)
+            and 0 < dt_out <= duration):
+        raise InputError(f'dt_out = {dt_out!r}: expected a step in (0, duration = '
+                         f'{duration:.6g}] s')
+    n_out = duration / dt_out
     decim = max(1, int(math.ceil(dt_out / dt_max - 1e-9)))
+    if n_out * decim > MAX_SAMPLES:
+        gib = n_out * (decim * c.N_U + c.N_Y + 8) * 8 / 2 ** 30
+        raise InputError(f'duration = {duration:.6g} s at dt_out = {dt_out:.6g} s (inputs held '
+                         f'over {dt_out / decim:.6g} s) needs {n_out * decim:.3g} samples, '
+                         f'about {gib:.3g} GiB; at most {MAX_SAMPLES:.3g}: shorten the '
+                         'duration or raise dt_out')
+    n_out = int(round(n_out))
     return n_out, decim, dt_out / decim
 
 
@@ -194,26 +212,56 @@ def simulate(params: Params, duration: float, current: Signal = None, *, model: 
     x0 = np.asarray(x0, dtype=float)
     names = state_names(params, model)
     if x0.shape != (len(names),):
-        raise ValueError(f'x0 must have {len(names)} entries ({", ".join(names)})')
+        raise InputError(f'x0 must have {len(names)} entries ({", ".join(names)})')
     Y = np.zeros((n_out + 1, c.N_Y))
     X = np.zeros((n_out + 1, x0.size))
     stats = np.zeros(2, dtype=np.int64)
     tol = config.rtol if rtol is None else rtol
     if method == 'rodas':
-        status, done = c.run(x0, 0.0, dt, U, p, tol, config.h_min, config.max_steps, decim, Y,
-                             X, stats)
-        if status != c.OK:
-            why = {c.FAIL_STEP: 'step size underflow', c.FAIL_NAN: 'non-finite state',
-                   c.FAIL_STEPS: 'too many steps'}[status]
-            raise IntegrationError(f'integration failed at t = {done * dt:.6g} s: {why}')
+        _run_rodas(x0, dt, U, p, tol, config, decim, Y, X, stats)
     elif method == 'radau':
         _run_radau(x0, dt, U, p, tol, decim, Y, X, stats)
     else:
-        raise ValueError(f'unknown method {method!r}: choose rodas or radau')
+        raise InputError(f'unknown method {method!r}: choose rodas or radau')
     t = np.arange(n_out + 1) * dt_out
     U_out = np.vstack([U[::decim], U[-1:]])
     return SimResult(t=t, y=Y, x=X, u=U_out, model=model, states=names, n_clamped=n_clamped,
                      stats={'accepted': int(stats[0]), 'rejected': int(stats[1])})
+
+
+# Increments per call of the compiled loop: the wall-time budget is checked between calls.
+_CHUNK = 20000
+
+
+def _run_rodas(x0, dt, U, p, rtol, config, decim, Y, X, stats):
+    """The compiled Rodas4 loop under the step and wall-time budgets of ``config``."""
+    n_out = Y.shape[0] - 1
+    rows = max(1, _CHUNK // decim)
+    budget = int(max(config.steps_per_second * U.shape[0] * dt, 1000))
+    t_wall = time.perf_counter()
+    x = x0
+    for r0 in range(0, n_out, rows):
+        r1 = min(r0 + rows, n_out)
+        k0, k1 = r0 * decim, r1 * decim
+        status, done = c.run(x, k0 * dt, dt, U[k0:k1], p, rtol, config.h_min,
+                             config.max_steps, decim, Y[r0:r1 + 1], X[r0:r1 + 1], stats, budget)
+        t_fail = (k0 + done) * dt
+        if status == c.FAIL_BUDGET:
+            raise IntegrationError(
+                f'the model is too stiff to integrate: {budget} solver steps were not enough '
+                f'for the first {t_fail:.6g} s (budget {config.steps_per_second:g} per '
+                'simulated second; a nominal run takes about 10000); check parameters near '
+                'the ends of their ranges')
+        if status != c.OK:
+            why = {c.FAIL_STEP: 'step size underflow', c.FAIL_NAN: 'non-finite state',
+                   c.FAIL_STEPS: 'too many steps in one increment'}[status]
+            raise IntegrationError(f'integration failed at t = {t_fail:.6g} s: {why}')
+        x = X[r1].copy()
+        elapsed = time.perf_counter() - t_wall
+        if elapsed > config.time_budget and r1 < n_out:
+            raise IntegrationError(f'stopped after {elapsed:.3g} s of wall time at t = '
+                                   f'{k1 * dt:.6g} s of {n_out * decim * dt:.6g} s (time budget '
+                                   f'{config.time_budget:g} s)')
 
 
 def _run_radau(x0, dt, U, p, rtol, decim, Y, X, stats):
@@ -278,7 +326,7 @@ class Simulator:
     def __init__(self, params: Params, dt: float = 1.0e-3, model: str = 'fine',
                  config: IntegratorConfig = IntegratorConfig()):
         if not (math.isfinite(dt) and dt > 0):
-            raise ValueError(f'dt must be positive, got {dt!r}')
+            raise InputError(f'dt = {dt!r}: expected a positive number of seconds')
         self.params = params
         self.model = model
         self.dt = dt

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+import time
 
 import numpy as np
 from scipy import optimize
@@ -148,13 +149,15 @@ def equilibrium(params: Params, current: float | None = None, *, load_pressure=N
         # pressure to destroke the pump): let the dynamics find it, then polish. Some such
         # points are degenerate (a dead-headed pump at zero displacement rests at any line
         # pressure below the relief valve), so a settled state is accepted more loosely.
-        x = _march(params, x0, u, p, model)
+        x, stopped = _march(params, x0, u, p, model)
         xp = polish(x)
         x = xp if good(xp, max(tol, 1e-7)) else x
         if not good(x, 1e-5):
+            why = _unphysical(params, x, u, p) or (
+                f'the state does not settle (scaled residual {worst(x):.2e} above 1e-05)')
             raise TrimError(f'no equilibrium found at I_s = {u[0] + params.I_nominal:.4g} A, '
-                            f'P_u = {u[1]:.4g} Pa, xi_u = {u[2]:.4g}, f_p = {u[3]:.4g} Hz '
-                            f'(scaled residual {worst(x):.2e})')
+                            f'P_u = {u[1]:.4g} Pa, xi_u = {u[2]:.4g}, f_p = {u[3]:.4g} Hz: '
+                            f'{why}' + (f'; {stopped}' if stopped else ''))
     r = worst(x)
     y = np.empty(c.N_Y)
     c.evaluate(0.0, x, u, p, dx, y)
@@ -163,17 +166,31 @@ def equilibrium(params: Params, current: float | None = None, *, load_pressure=N
 
 
 def _physical(params: Params, x: np.ndarray, u: np.ndarray, p: np.ndarray, model: str) -> bool:
-    """A steady state the pump can hold: pressures above absolute zero, the actuator between
-    tank and line pressure (D5; otherwise the pilot feedback reverses), parts near their
-    stroke."""
+    """A steady state the pump can hold (see :func:`_unphysical`)."""
+    return _unphysical(params, x, u, p) is None
+
+
+def _unphysical(params: Params, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> str | None:
+    """Why ``x`` is not a steady state the pump can hold, or ``None``: pressures above
+    absolute zero, the actuator between tank and line pressure (D5; otherwise the pilot
+    feedback reverses), parts near their stroke."""
+    if not np.all(np.isfinite(x)):
+        return 'the state is not finite'
     y = np.empty(c.N_Y)
     c.evaluate(0.0, x, u, p, np.empty_like(x), y)
     P_a, P_l, x_a, x_c = y[c.Y_PA], y[c.Y_PL], y[c.Y_XA], y[c.Y_XC]
     slack = 1.0e4  # Pa: the regularised orifice lets P_a sit a little outside P_T..P_l
-    return bool(np.all(np.isfinite(x)) and P_l + params.fluid.p_atm >= 0.0
-                and params.fluid.P_T - slack <= P_a <= P_l + slack
-                and abs(x_a) <= 1.5 * params.x_a_stop
-                and abs(x_c) <= 1.5 * params.spool.x_c_max)
+    if P_l + params.fluid.p_atm < 0.0:
+        return f'the line pressure P_l = {P_l:.4g} Pa is below absolute zero'
+    if not params.fluid.P_T - slack <= P_a <= P_l + slack:
+        return (f'the actuator pressure P_a = {P_a:.4g} Pa is outside [P_T, P_l] = '
+                f'[{params.fluid.P_T:.4g}, {P_l:.4g}] Pa (D5: the pilot feedback reverses)')
+    if abs(x_a) > 1.5 * params.x_a_stop:
+        return f'the plate is at x_a = {x_a:.4g} m, beyond its stroke {params.x_a_stop:.4g} m'
+    if abs(x_c) > 1.5 * params.spool.x_c_max:
+        return (f'the spool is at x_c = {x_c:.4g} m, beyond its stroke '
+                f'{params.spool.x_c_max:.4g} m')
+    return None
 
 
 def _standby_seed(params: Params, u: np.ndarray, p: np.ndarray) -> np.ndarray | None:
@@ -206,8 +223,11 @@ def _standby_seed(params: Params, u: np.ndarray, p: np.ndarray) -> np.ndarray | 
 
 
 def _march(params: Params, x0: np.ndarray, u: np.ndarray, p: np.ndarray, model: str,
-           horizon: float = 10.0) -> np.ndarray:
-    """Integrate with held inputs from a physically clipped seed until the state settles."""
+           horizon: float = 10.0, max_steps: int = 1_000_000, time_budget: float = 10.0
+           ) -> tuple[np.ndarray, str]:
+    """Integrate with held inputs from a physically clipped seed until the state settles,
+    within ``horizon`` of simulated time, ``max_steps`` solver steps and ``time_budget`` s of
+    wall time. Returns the state and why the march stopped early (``''`` if it did not)."""
     x = x0.copy()
     if model == 'fine':
         x[5] = max(x[5], params.fluid.P_T)
@@ -219,12 +239,20 @@ def _march(params: Params, x0: np.ndarray, u: np.ndarray, p: np.ndarray, model: 
     stats = np.zeros(2, dtype=np.int64)
     scale = c.state_scale(p, x.size)
     dx = np.empty_like(x)
+    t0 = time.perf_counter()
     for k in range(int(horizon / (dt * chunk))):
-        status, _ = c.run(x, k * dt * chunk, dt, U, p, 1e-6, 1e-12, 20000, 1, Y, X, stats)
+        status, _ = c.run(x, k * dt * chunk, dt, U, p, 1e-6, 1e-12, 20000, 1, Y, X, stats,
+                          max_steps)
+        if status == c.FAIL_BUDGET:
+            return x, (f'the integration toward it took more than {max_steps:.3g} solver steps '
+                       'in {:.3g} s (the parameters make the model very stiff)'.format(
+                           (k + 1) * dt * chunk))
         if status != c.OK:
-            break
+            return x, 'the integration toward it failed'
         x = X[-1].copy()
         c.evaluate(0.0, x, u, p, dx, Y[0])
         if np.max(np.abs(dx) * 1.0e-3 / scale) < 1e-9:
             break
-    return x
+        if time.perf_counter() - t0 > time_budget:
+            return x, f'the integration toward it ran out of its {time_budget:g} s time budget'
+    return x, ''

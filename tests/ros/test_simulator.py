@@ -142,7 +142,7 @@ def test_pause_reset_and_live_parameters(nodes, test_node):
             parameters=[Parameter(name=name, value=v)])).results[0]
 
     bad = set_param('line.xi_u', 2.0)
-    assert not bad.successful and bad.reason.startswith('line.xi_u = 2 -: outside the '
+    assert not bad.successful and bad.reason.startswith('line.xi_u = 2: outside the '
                                                         'accepted range [0, 1]')
     # The reason that ros2 param set prints carries the unit hint.
     bar = set_param('line.P_u', 120.0)
