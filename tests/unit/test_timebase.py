@@ -158,16 +158,21 @@ def test_watchdog_holds_then_commands_the_safe_current_then_resumes(ctrl_config,
         _feed(sup, k, 0.5 * params.Q_max)
     clock.t += 0.3
     assert sup.check_watchdog() is None and sup.mode_state == 'hold'
-    assert not _feed(sup, 10, 0.5 * params.Q_max) or sup.mode_state == 'hold'
+    sup.clock(10 * MS, 10 ** 12 + 10_000)
+    assert sup.mode_state == 'hold'  # a /clock alone is no measurement: still holding
     clock.t += 1.5
     out = sup.check_watchdog()
     assert sup.mode_state == 'safe' and out.command == ctrl_config.limits.safe_current
-    _feed(sup, 11, 0.5 * params.Q_max)
-    assert sup.check_watchdog() is None and sup.mode_state == 'running'
+    assert out.stamp_ns == 10 * MS  # stamped with the latest simulation time
+    # The first measurement back restarts the law at the next instant (bumplessly).
     outs = []
-    for k in range(12, 21):
+    for k in range(11, 21):
         outs += _feed(sup, k, 0.5 * params.Q_max)
-    assert outs, 'updates resume after the measurements come back'
+    assert sup.mode_state == 'running'
+    # The instant that came due while holding (10 ms) is served as soon as it can be.
+    assert [o.stamp_ns for o in outs] == [10 * MS, 15 * MS, 20 * MS]
+    assert outs[0].command == pytest.approx(sup.ctrl._pump.current(0.5 * params.Q_max),
+                                            abs=2e-3)
 
 
 def test_measurement_gate_rejects_faults(ctrl_config):

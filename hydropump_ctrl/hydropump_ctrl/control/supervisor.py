@@ -154,6 +154,8 @@ class Supervisor:
         """A measurement sample (SI, absolute pressures): with its header stamp, or, for an
         unstamped topic, its DDS source timestamp."""
         self._last_rx = self._clock()
+        if self.mode_state != 'running':
+            self._resume()
         lo, hi = PLAUSIBLE.get(topic, (-math.inf, math.inf))
         if not math.isfinite(value):
             self.counts['rejected_nan'] += 1
@@ -215,12 +217,14 @@ class Supervisor:
             if self.mode_state == 'running':
                 self._log('warn', f'measurements stale ({age:.2f} s): holding the command')
             self.mode_state = 'hold'
-        elif self.mode_state != 'running':
-            self._log('info', 'measurements are back: resuming')
-            self._needs_reset = True
-            self._t_prev = None
-            self.mode_state = 'running'
         return None
+
+    def _resume(self) -> None:
+        """Measurements are back: restart the law from them at the next instant."""
+        self._log('info', 'measurements are back: resuming')
+        self._needs_reset = True
+        self._t_prev = None
+        self.mode_state = 'running'
 
     def set_reference(self, value: float) -> str | None:
         """The reference of the present mode (SI); a refusal's reason, or ``None``."""

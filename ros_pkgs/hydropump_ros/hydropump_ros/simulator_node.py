@@ -141,6 +141,11 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
     def _run(self) -> None:
         if not self._alone():
             return
+        cfg = self.cfg
+        pace = ('lock-step' if cfg.lock_step else 'as fast as possible'
+                if cfg.real_time_factor == 0 else f'real-time factor {cfg.real_time_factor:g}')
+        self.get_logger().info(f'ready: {cfg.publish_rate:g} Hz, {pace}'
+                               + (', paused until ~/pause false' if cfg.start_paused else ''))
         try:
             self.runner.run(self)
         except Exception as exc:  # a publisher gone at shutdown ends the thread quietly
