@@ -18,10 +18,10 @@ import time
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from hydropump_ctrl.closed_loop import Event, run_closed_loop  # noqa: E402
 from hydropump_ctrl.control.emc import EMCController  # noqa: E402
 from hydropump_ctrl.control.pi import PIController  # noqa: E402
 from hydropump_ctrl.control.schema import load_config  # noqa: E402
+from hydropump_ctrl.experiments.closed_loop import Event, run_closed_loop  # noqa: E402
 from hydropump_sim import load_params  # noqa: E402
 from hydropump_sim.params import default_params_path  # noqa: E402
 from hydropump_sim.sensors import load_profile  # noqa: E402

@@ -221,9 +221,9 @@ def _plot_pair(path: Path, title: str, runs: dict, signal: str, scale: float, un
 
 def cmd_closed_loop(args) -> int:
     from .cli import run_dir
-    from .control import cases as cs
     from .control.emc import EMCController
     from .control.pi import PIController
+    from .experiments import cases as cs
     t0 = time.perf_counter()
     params, profile, cfg, source = _load_setup(args)
     out = run_dir(args.out, 'closed-loop')

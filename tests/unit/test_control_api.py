@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hydropump_ctrl.closed_loop import Event, run_closed_loop
 from hydropump_ctrl.control.emc import EMCController
 from hydropump_ctrl.control.pi import PIController
+from hydropump_ctrl.experiments.closed_loop import Event, run_closed_loop
 from hydropump_sim.params import ParamError
 
 ROOT = Path(__file__).resolve().parents[2]

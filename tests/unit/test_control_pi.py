@@ -5,8 +5,8 @@ from types import SimpleNamespace
 
 import pytest
 
-from hydropump_ctrl.control.cases import unreachable_case
 from hydropump_ctrl.control.pi import PIController, Pid
+from hydropump_ctrl.experiments.cases import unreachable_case
 
 ROOT = Path(__file__).resolve().parents[2]
 

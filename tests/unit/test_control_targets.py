@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hydropump_ctrl.closed_loop import PlantVariation, run_closed_loop
-from hydropump_ctrl.control import cases as cs
 from hydropump_ctrl.control.emc import EMCController
 from hydropump_ctrl.control.pi import PIController
+from hydropump_ctrl.experiments import cases as cs
+from hydropump_ctrl.experiments.closed_loop import PlantVariation, run_closed_loop
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -68,7 +68,7 @@ def test_worst_combined_corner(cfg, params, bench, FS):
 def test_quasi_static_dip_is_what_the_plant_does_with_the_flow_held(params, bench):
     """The "unavoidable dip": an aperture step with the current held, line settled, before the
     pump moves (the pump cannot change its flow in the few ms the line needs)."""
-    from hydropump_ctrl.closed_loop import trim_current
+    from hydropump_ctrl.experiments.closed_loop import trim_current
     from hydropump_sim import simulate
     for xi0, k in ((0.5, 1.2), (0.8, 0.8)):
         p = params.replace({'line.xi_u': xi0})

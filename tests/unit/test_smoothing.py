@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from hydropump_ctrl.closed_loop import dither_free
+from hydropump_ctrl.experiments.closed_loop import dither_free
 from hydropump_sim.metrics import dither_window, moving_average
 
 

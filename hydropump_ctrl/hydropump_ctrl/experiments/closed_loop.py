@@ -1,4 +1,4 @@
-"""Pure closed-loop harness: the fine-model Simulator at 1 kHz, the sensor bank, and a
+"""The pure closed-loop harness: the fine-model Simulator at 1 kHz, the sensor bank, and a
 controller at its own rate with a zero-order hold. No ROS, no DDS.
 
 This is the offline twin of the ROS graph (simulator node, controller node): the Simulator owns
@@ -6,7 +6,10 @@ time, the sensors see every plant step, the controller is called every ``1/updat
 the measurements of that instant and its command is held until the next call. Events (reference
 and mode changes, load and shaft-speed steps) are scheduled in simulation time.
 
-The result keeps the true plant outputs (for judging) and what the controller saw and did.
+The controller sees the plant through :func:`hydropump_sim.measure.true_signals`, the
+measurement map of the simulator node, so both feed it the same signals. The result keeps the
+true plant outputs (for judging) and what the controller saw and did; the figures of a run
+(step and disturbance figures, tone amplitudes) are here too.
 """
 
 from __future__ import annotations
@@ -18,17 +21,18 @@ from typing import Any
 import numpy as np
 from scipy.optimize import brentq
 
-from hydropump_sim import equilibrium, Simulator
+from hydropump_sim import equilibrium, Simulator, TrimError
+from hydropump_sim.errors import InputError
+from hydropump_sim.measure import true_signals
 from hydropump_sim.metrics import dither_window, moving_average, step_figures, StepFigures
 from hydropump_sim.model import OUTPUTS
 from hydropump_sim.params import Params
 from hydropump_sim.sensors import SensorBank, SensorProfile
 
-from .control.base import Controller
+from ..control.base import Controller
 
 PLANT_EVENTS = {'aperture', 'load_pressure', 'shaft_speed'}
 CONTROLLER_EVENTS = {'reference', 'mode', 'config'}
-_IDX = {name: OUTPUTS.index(name) for name in OUTPUTS}
 
 
 @dataclass(frozen=True)
@@ -160,19 +164,12 @@ def trim_current(params: Params, *, flow: float | None = None, margin: float | N
             eq = equilibrium(params, current, model=model)
             return eq.P_l - eq.u[1] - margin
     else:
-        raise ValueError('give flow or margin')
+        raise InputError('trim_current: give flow or margin')
     if f(lo) * f(hi) > 0.0:
         what = 'flow' if flow is not None else 'margin'
-        raise ValueError(f'no equilibrium inside the displacement range for {what} = '
+        raise TrimError(f'no equilibrium inside the displacement range for {what} = '
                          f'{flow if flow is not None else margin:g}')
     return brentq(f, lo, hi, xtol=1e-10)
-
-
-def measurements(y: np.ndarray) -> dict[str, float]:
-    """True values of the measured signals from a Simulator output vector (SI, gauge)."""
-    return {'line_flow': y[_IDX['q_l']], 'pump_flow': y[_IDX['Q_p']],
-            'load_flow': y[_IDX['Q_load']], 'line_pressure': y[_IDX['P_l']],
-            'actuator_pressure': y[_IDX['P_a']], 'solenoid_current': y[_IDX['I_s']]}
 
 
 def run_closed_loop(controller: Controller, duration: float, events=(), *,
@@ -232,7 +229,7 @@ def run_closed_loop(controller: Controller, duration: float, events=(), *,
     period = controller.config.period
     ratio = int(round(period / dt_sim))
     if ratio < 1 or abs(ratio * dt_sim - period) > 1e-9:
-        raise ValueError(f'controller period {period:g} s is not a multiple of dt_sim '
+        raise InputError(f'controller period {period:g} s is not a multiple of dt_sim '
                          f'{dt_sim:g} s')
     sim = Simulator(p, dt=dt_sim)
     sim.reset(I0)
@@ -250,7 +247,7 @@ def run_closed_loop(controller: Controller, duration: float, events=(), *,
     pending = sorted(events, key=lambda e: e.t)
     y = sim.outputs()
     # The controller starts from the exact steady state, as after a long rest.
-    m0 = {**measurements(y), 'load_pressure': float(sim.u[1])}
+    m0 = true_signals(y, sim.u)
     if mode is not None:
         controller.set_mode(mode)
     if start_flow is not None:
@@ -265,7 +262,7 @@ def run_closed_loop(controller: Controller, duration: float, events=(), *,
         while j >= 0 and pending and pending[0].t <= tj + 1e-9:
             _apply(pending.pop(0), sim, controller)
         y = sim.outputs()
-        m = bank.measure({**measurements(y), 'load_pressure': sim.u[1]})
+        m = bank.measure(true_signals(y, sim.u))
         if j % ratio == 0:
             u = controller.update(tj, period, m)
             sim.set_inputs(current=u)
@@ -304,7 +301,7 @@ def _apply(ev: Event, sim: Simulator, controller: Controller) -> None:
     elif ev.action in PLANT_EVENTS:
         sim.set_inputs(**{ev.action: ev.value})
     else:
-        raise ValueError(f'unknown event {ev.action!r}: use reference, mode, config, '
+        raise InputError(f'unknown event {ev.action!r}: use reference, mode, config, '
                          f'{", ".join(sorted(PLANT_EVENTS))}')
 
 

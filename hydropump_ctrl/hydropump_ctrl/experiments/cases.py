@@ -1,9 +1,9 @@
 """The judged closed-loop cases, shared by the tests, ``hydropump closed-loop``, the
 benchmark and docs/control.md.
 
-Every case builds its own run on :func:`hydropump_ctrl.closed_loop.run_closed_loop` (fine model,
-sensor profile, controller at its rate) and returns the run with its figures in SI units.
-:func:`target_table` runs them all for EMC and the PI baseline and checks the targets.
+Every case builds its own run on :func:`.closed_loop.run_closed_loop` (fine model, sensor
+profile, controller at its rate) and returns the run with its figures in SI units.
+:func:`evaluate` runs them all for EMC and the PI baseline and checks the targets.
 """
 
 from __future__ import annotations
@@ -17,7 +17,8 @@ import numpy as np
 from hydropump_sim.params import Params
 from hydropump_sim.sensors import SensorProfile
 
-from ..closed_loop import (
+from ..control.base import Controller
+from .closed_loop import (
     ClosedLoopResult,
     disturbance_figures,
     Event,
@@ -25,7 +26,6 @@ from ..closed_loop import (
     run_closed_loop,
     tone_amplitude,
 )
-from .base import Controller
 
 NOMINAL = PlantVariation()
 
@@ -216,7 +216,7 @@ def _ratio_ok(emc: list[float], pi: list[float], limit: float) -> tuple[str, boo
 def evaluate(make: dict, params: Params, profile: SensorProfile, cfg) -> list[TargetRow]:
     """Run every judged case for each controller factory in ``make`` (``{'EMC': f, 'PI': g}``,
     each ``f()`` a fresh controller) and return the target table (EMC judged)."""
-    from .design import (
+    from ..control.design import (
         emc_flow_margins,
         emc_margin_margins,
         margin_operating_points,
