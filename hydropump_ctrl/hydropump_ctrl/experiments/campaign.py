@@ -1,0 +1,308 @@
+"""The demo campaign (``hydropump-demo``): its experiments and what is made of their bags.
+
+The ROS package runs each :class:`Experiment` through the node graph into a bag; everything
+before and after that is here, pure:
+
+- :func:`identification_experiments`, :func:`closed_loop_experiments` - the runs (node
+  parameters, recorded topics, the schedule of changes);
+- :func:`plant_truth` - what a perfect fit should find: each identification run replayed on a
+  noise-free, delay-free twin of the plant and fitted;
+- :func:`loop_figures` - rise, overshoot, settling, peak and IAE of a closed-loop run from
+  its :class:`~hydropump_ctrl.ident.Recording`;
+- :func:`analyse_campaign` - stages 2, 4 and 5: the fit, the model analysis and the report
+  (figures in :mod:`.plots`, tables and the HTML page in :mod:`.report`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+import json
+from pathlib import Path
+import time
+
+import numpy as np
+
+from hydropump_sim.metrics import moving_average, step_figures
+from hydropump_sim.model import pump_flow
+from hydropump_sim.params import Params
+from hydropump_sim.scaling import current_for_displacement
+from hydropump_sim.sensors import SensorProfile
+
+from ..ident import Recording
+from .closed_loop import disturbance_figures
+
+IDENT_TOPICS = ['solenoid_current', 'solenoid_current_cmd', 'line_flow', 'pump_flow',
+                'joint_states', 'line_pressure', 'load_pressure']
+LOOP_TOPICS = IDENT_TOPICS + ['load_flow', 'controller/state']
+STAGES = ('identification', 'fitting', 'closed loop', 'model analysis', 'report')
+
+
+# ---- experiments ----------------------------------------------------------------------------
+
+@dataclass
+class Experiment:
+    """One run of the graph: node arguments, topics to record, schedule of changes.
+
+    Attributes
+    ----------
+    name, label : str
+        Bag and log folder name; one line for the progress and the report.
+    duration : float
+        Simulated time [s].
+    sim, ctrl : dict
+        Parameters of the simulator and the controller node at start-up.
+    topics : list of str
+        Topics the recorder records.
+    events : list
+        ``(t, node, {param: value})``: parameters set on a node at simulation time ``t``.
+    scenario : dict, optional
+        Simulator scenario inputs (in simulation time), e.g. an aperture step.
+    """
+
+    name: str
+    label: str
+    duration: float
+    sim: dict
+    ctrl: dict
+    topics: list
+    events: list = field(default_factory=list)
+    scenario: dict | None = None
+
+    def bag(self, folder: str | Path) -> Path:
+        """The run's bag in ``folder``: named after the experiment."""
+        return Path(folder) / self.name
+
+
+def identification_experiments(params: Params, n: int = 9, dwell: float = 1.0,
+                               levels: int = 4) -> list[Experiment]:
+    """Nine growing-flow staircases: three displacement ranges by three load pressures, each
+    with its own noise seed (the paper: nine data sets, growing flow only)."""
+    ranges = [(20.0, 50.0), (35.0, 65.0), (50.0, 80.0)]
+    loads = [8.0e6, 1.2e7, 1.6e7]
+    out = []
+    for i in range(n):
+        lo, hi = ranges[i % 3]
+        pu = loads[(i // 3) % 3]
+        out.append(Experiment(
+            name=f'ident_{i + 1}',
+            label=f'staircase {lo:.0f} -> {hi:.0f} %, P_u {pu / 1e5:.0f} bar, seed {i + 1}',
+            duration=levels * dwell,
+            sim={'initial_current': float(current_for_displacement(params, lo / 100.0)),
+                 'line.P_u': pu, 'sensors.seed': i + 1},
+            ctrl={'controller.mode': 'open_loop', 'excitation.signal': 'staircase',
+                  'excitation.direction': 'up', 'excitation.unit': 'percent',
+                  'excitation.levels_min': lo, 'excitation.levels_max': hi,
+                  'excitation.n_levels': levels, 'excitation.dwell': dwell,
+                  'excitation.repeat': False},
+            topics=IDENT_TOPICS))
+    return out
+
+
+def closed_loop_experiments(params: Params, algorithms: Sequence[str] = ('emc', 'pi'),
+                            t_step: float = 0.5, duration: float = 1.5) -> list[Experiment]:
+    """The three judged scenarios for each algorithm: a 30 -> 70 % flow step, a load
+    aperture step 0.5 -> 0.4 at a 25 bar margin, and a margin set-point step 20 -> 25 bar."""
+    q30, q70 = 0.3 * params.Q_max, 0.7 * params.Q_max
+    out = []
+    for alg in algorithms:
+        base = {'controller.algorithm': alg}
+        out += [
+            Experiment(f'{alg}_flow_step', f'{alg.upper()}: flow step 30 -> 70 %', duration,
+                       {'initial_current': float(current_for_displacement(params, 0.3))},
+                       {**base, 'controller.mode': 'flow', 'reference.flow': q30},
+                       LOOP_TOPICS, [(t_step, 'controller', {'reference.flow': q70})]),
+            Experiment(f'{alg}_aperture_step', f'{alg.upper()}: aperture 0.5 -> 0.4 at 25 bar',
+                       duration, {}, {**base, 'controller.mode': 'margin',
+                                      'reference.margin': 2.5e6},
+                       LOOP_TOPICS, [], {'aperture': {'steps': [[0.0, 0.5], [t_step, 0.4]]}}),
+            Experiment(f'{alg}_margin_step', f'{alg.upper()}: margin 20 -> 25 bar', duration,
+                       {}, {**base, 'controller.mode': 'margin', 'reference.margin': 2.0e6},
+                       LOOP_TOPICS, [(t_step, 'controller', {'reference.margin': 2.5e6})]),
+        ]
+    return out
+
+
+# ---- the plant's own answer -----------------------------------------------------------------
+
+def plant_truth(params: Params, profile: SensorProfile, ident) -> dict:
+    """The plant's own eq. 19 under the bench conditions: each experiment replayed on the fine
+    model with the commanded current, dither on, no sensor delay or noise, and fitted.
+
+    Parameters
+    ----------
+    params : Params
+        Nominal plant; the profile's ``plant_overrides`` (the dither) are applied.
+    profile : SensorProfile
+        The bench profile of the runs: its dither and its configured line-flow delay.
+    ident : Identification
+        The fit of the runs; its ``recordings`` (one per bag, read once) give the commanded
+        current.
+
+    Returns
+    -------
+    dict
+        ``G0``, ``tau``, ``td_plant`` of the twin's fit, ``td_configured`` (the sensor delay)
+        and ``tau_nominal`` (:func:`nominal_tau`).
+    """
+    from hydropump_sim import simulate
+
+    from ..ident import fit_recordings
+    plant = params.replace(profile.plant_overrides or {})
+    recs = []
+    for rec in ident.recordings:
+        # The command starts with the controller's first update; time from there, in the
+        # grid's whole nanoseconds.
+        ok = np.isfinite(rec['solenoid_current_cmd'])
+        ns = np.round(rec.t[ok] * 1e9).astype(np.int64)
+        t, u = (ns - ns[0]) * 1e-9, rec['solenoid_current_cmd'][ok]
+
+        def held(tt, t=t, u=u):
+            return u[np.clip(np.searchsorted(t, tt, side='right') - 1, 0, u.size - 1)]
+
+        res = simulate(plant, float(t[-1]) + 1e-3, held, dt_out=1e-3)
+        recs.append(Recording(res.t, {'solenoid_current': held(res.t), 'line_flow': res.q_l},
+                              name=f'{rec.name} twin'))
+    twin = fit_recordings(recs, params=params, joint=False)
+    return {'G0': twin.G0, 'tau': twin.tau, 'td_plant': twin.td,
+            'td_configured': profile.spec('line_flow').delay,
+            'tau_nominal': nominal_tau(params)}
+
+
+def nominal_tau(params: Params) -> float:
+    """63 % time [s] of the fine model's own 40 -> 60 % up-step, no dither (100.4 ms in
+    docs/reference.md)."""
+    from hydropump_sim import equilibrium, simulate
+    I0, I1 = current_for_displacement(params, [0.4, 0.6])
+    r = simulate(params, 1.2, lambda t: np.where(t < 0.01, I0, I1), dt_out=1e-4)
+    return step_figures(r.t, r.q_l, 0.01, final=equilibrium(params, I1).q_l).t63
+
+
+# ---- figures of a closed-loop run -----------------------------------------------------------
+
+def _average(t: np.ndarray, x: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
+    """Centred moving average over ``width`` seconds, where a whole window fits."""
+    k = max(1, int(round(width / float(np.median(np.diff(t))))))
+    y = moving_average(x, k, edges='valid')
+    return t[k // 2:k // 2 + y.size], y
+
+
+def loop_figures(params: Params, exp: Experiment, rec: Recording, t_step: float = 0.5) -> dict:
+    """Figures of one closed-loop run of :func:`closed_loop_experiments`.
+
+    The flow is the pump flow of eq. 8 at the recorded plate position (the true flow, not the
+    delayed sensor), averaged over one dither period; the margin ``P_l - P_u`` is measured,
+    averaged over 20 ms, as the paper filters the dither.
+
+    Parameters
+    ----------
+    params : Params
+        The plant of the run.
+    exp : Experiment
+        The run: its mode, reference and events say what was stepped.
+    rec : Recording
+        The run's bag (:func:`hydropump_ctrl.ident.read_recording`).
+    t_step : float
+        Simulation time of the step [s].
+
+    Returns
+    -------
+    dict
+        A reference step: ``rise_s``, ``overshoot_pct``, ``settling_s``; a disturbance:
+        ``peak_bar`` and ``recovery_s`` (back within 1 bar of the set-point). Both: ``iae``
+        with its ``iae_unit``, the averaged output ``y = (t, value)`` in ``unit``.
+    """
+    t = rec.t + rec.t0_ns * 1e-9   # simulation time, as the schedule
+    if exp.ctrl['controller.mode'] == 'flow':
+        t, y = _average(t, pump_flow(params, rec['actuator_position']),
+                        1.0 / params.input.dither_freq)
+        y0, y1 = exp.ctrl['reference.flow'], exp.events[0][2]['reference.flow']
+        scale, unit, band = 100.0 / params.Q_max, '% FS', 0.02 * abs(y1 - y0)
+    else:
+        # Absolute pressures in the bag: their difference is the gauge margin.
+        t, y = _average(t, rec['line_pressure'] - rec['load_pressure'], 0.02)
+        y0 = exp.ctrl['reference.margin']
+        y1 = exp.events[0][2]['reference.margin'] if exp.events else y0
+        scale, unit, band = 1e-5, 'bar', 0.5e5
+    sel = t >= t_step - 0.1
+    t, y = t[sel], y[sel]
+    if y1 != y0:
+        f = step_figures(t, y, t_step, initial=y0, final=y1, band_abs=band)
+        return {'rise_s': f.rise, 'overshoot_pct': f.overshoot, 'settling_s': f.settling,
+                'iae': f.iae * scale, 'iae_unit': f'{unit} s', 'y': (t, y * scale),
+                'unit': unit}
+    d = disturbance_figures(t, y, t_step, y0, band=1.0e5)
+    return {'peak_bar': abs(d.peak) * 1e-5, 'recovery_s': d.recovery, 'iae': d.iae * 1e-5,
+            'iae_unit': 'bar s', 'y': (t, y * 1e-5), 'unit': 'bar'}
+
+
+# ---- after the runs -------------------------------------------------------------------------
+
+def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: SensorProfile,
+                     idents: Sequence[Experiment], loops: Sequence[Experiment], walls: dict,
+                     started: float, echo: Callable[[str], None] = print) -> Path:
+    """Stages 2, 4 and 5 of the demo on its bags: fit, model analysis, report.
+
+    Parameters
+    ----------
+    run_dir : Path
+        The run folder: ``identification/``, ``figures/``, ``report.html`` and
+        ``summary.json`` are written there.
+    bag_dir : Path
+        The folder of the bags (:meth:`Experiment.bag`).
+    params, profile : Params, SensorProfile
+        The plant and the bench sensor profile of the runs.
+    idents, loops : sequence of Experiment
+        The identification and the closed-loop experiments that were run.
+    walls : dict
+        Wall times [s] of the stages so far; this adds the others and ``total``.
+    started : float
+        ``time.perf_counter()`` at the start of the run, for the total.
+    echo : callable
+        Where progress lines and tables go (one string a call).
+
+    Returns
+    -------
+    Path
+        The report page.
+    """
+    from hydropump_sim import analysis
+
+    from ..ident import fit_bags, format_table, read_recording, write_report
+    from . import plots, report
+    t0 = time.perf_counter()
+    echo('[2/5 fitting] eq. 19 on the identification bags ...')
+    ident = fit_bags([exp.bag(bag_dir) for exp in idents], params=params, progress=None)
+    fit_paths = write_report(ident, run_dir / 'identification', params=params)
+    truth = plant_truth(params, profile, ident)
+    walls['fitting'] = time.perf_counter() - t0
+    echo(format_table(ident))
+    rows = report.identification_rows(ident, truth)
+    echo(report.text_table(['', 'G0 [%/range]', 'tau [ms]', 't_d [ms]'], rows))
+    loop_results = {exp.name: loop_figures(params, exp, read_recording(exp.bag(bag_dir)))
+                    for exp in loops}
+    echo(report.text_table(*report.loop_table(loop_results)))
+    t0 = time.perf_counter()
+    echo('[4/5 model analysis] modes and the singular-perturbation check ...')
+    text, steps = analysis.format_report(params)
+    modal = text[text.index('== Fine-model modes'):text.index('== Paper linear models')]
+    echo(modal)
+    walls['model analysis'] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    echo('[5/5 report] figures and report.html ...')
+    figs = run_dir / 'figures'
+    figs.mkdir(exist_ok=True)
+    analysis.plot_steps(steps, params, figs / 'steps.png')
+    plots.plot_bode_identified(params, ident, figs / 'bode.png')
+    hyst = plots.plot_hysteresis(params, figs / 'hysteresis.png')
+    plots.plot_closed_loop(loop_results, figs / 'emc_vs_pi.png')
+    walls['report'] = time.perf_counter() - t0
+    walls['total'] = time.perf_counter() - started
+    sections = report.report_sections(ident, truth, rows, loop_results, modal, text, hyst,
+                                      walls, fit_paths, figs, bag_dir)
+    page = report.write_html(run_dir, sections)
+    (run_dir / 'summary.json').write_text(json.dumps(report.summary(
+        ident, truth, loop_results, walls), indent=2) + '\n')
+    echo(report.text_table(['stage', 'wall time [s]'],
+                           [[k, f'{v:.1f}'] for k, v in walls.items()]))
+    return page

@@ -1,0 +1,144 @@
+"""The demo report: the tables (text and HTML), the self-contained HTML page, ``summary.json``.
+
+Numbers come in SI from the fit (:class:`~hydropump_ctrl.ident.Identification`), the plant's
+own answer (:func:`.campaign.plant_truth`) and the closed-loop figures
+(:func:`.campaign.loop_figures`); milliseconds, percent and bar appear only here, in text.
+The paper's figures are :data:`hydropump_ctrl.ident.PAPER`.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import math
+from pathlib import Path
+
+from ..ident import PAPER
+
+# ---- tables ---------------------------------------------------------------------------------
+
+def identification_rows(ident, truth: dict) -> list[list[str]]:
+    """The paper, this run's pooled fit and the plant's own answer: G0, tau, t_d as text."""
+    p = ident.pooled
+
+    def pm(m, s, k=1.0, f='.1f'):
+        return f'{m * k:{f}} ± {s * k:{f}}'
+    return [
+        ['paper (9 sets)', pm(*PAPER['G0']), pm(*PAPER['tau'], 1e3), pm(*PAPER['td'], 1e3)],
+        [f'this run ({len(ident.sets)} sets, mean ± std)', pm(p.mean['G0'], p.std['G0'], 1,
+                                                             '.2f'),
+         pm(p.mean['tau'], p.std['tau'], 1e3), pm(p.mean['td'], p.std['td'], 1e3)],
+        ['plant: fine model + bench dither, no sensors', f'{truth["G0"]:.2f}',
+         f'{truth["tau"] * 1e3:.1f}', f'{truth["td_plant"] * 1e3:.2f}'],
+        ['plant: configured sensor delay', '', '', f'{truth["td_configured"] * 1e3:.1f}'],
+        ['plant: fine model 63 % time, no dither', '', f'{truth["tau_nominal"] * 1e3:.1f}',
+         ''],
+    ]
+
+
+def loop_table(results: dict) -> tuple[list[str], list[list[str]]]:
+    """Head and rows of the closed-loop figures, one row a run (empty where not defined)."""
+    head = ['run', 'rise [s]', 'overshoot [%]', 'settling [s]', 'peak dev. [bar]',
+            'recovery [s]', 'IAE']
+    rows = []
+    for name, f in results.items():
+        rows.append([name, _fmt(f.get('rise_s')), _fmt(f.get('overshoot_pct')),
+                     _fmt(f.get('settling_s')), _fmt(f.get('peak_bar')),
+                     _fmt(f.get('recovery_s')), f'{f["iae"]:.4g} {f["iae_unit"]}'])
+    return head, rows
+
+
+def _fmt(v) -> str:
+    """A figure in three digits; ``''`` where it does not apply, ``never`` for infinity."""
+    return '' if v is None else ('never' if v == math.inf else f'{v:.3g}')
+
+
+def text_table(head, rows) -> str:
+    """Columns padded to their widest cell, a rule under the head (for the terminal)."""
+    cols = [head] + rows
+    w = [max(len(str(r[i])) for r in cols) for i in range(len(head))]
+
+    def line(r):
+        return '  '.join(str(x).ljust(w[i]) for i, x in enumerate(r))
+    return '\n'.join([line(head), line(['-' * x for x in w])] + [line(r) for r in rows])
+
+
+def report_sections(ident, truth, rows, loops, modal, analysis_text, hyst, walls, fit_paths,
+                    figs, bag_dir) -> list[tuple[str, str]]:
+    """The sections of the page, ``(title, HTML body)``: identification, Bode, steps,
+    hysteresis, closed loop, model analysis and the run's wall times.
+
+    ``rows`` are :func:`identification_rows`, ``loops`` the closed-loop figures, ``modal`` and
+    ``analysis_text`` the model analysis (its modal part and all of it), ``hyst`` the gaps of
+    :func:`.plots.plot_hysteresis`, ``fit_paths`` what :func:`~hydropump_ctrl.ident.write_report`
+    wrote, ``figs`` the folder of the PNG figures.
+    """
+    head, lrows = loop_table(loops)
+    return [
+        ('Identification (section V, eq. 19): the paper against this run',
+         _table(['', 'G0 [% per range]', 'tau [ms]', 't_d [ms]'], rows)
+         + '<p>Nine growing-flow current staircases through the real nodes (simulator with '
+           'the bench sensor profile, controller in open loop, recorder), fitted with the '
+           'robust method. The plant rows show what a perfect fit should find: the fine '
+           'model under the same dither without sensors, and the configured delay.</p>'
+         + _img(Path(fit_paths['fig5'])) + _img(Path(fit_paths['fig6']))),
+        ('Bode: fine vs simplified vs identified', _img(figs / 'bode.png')),
+        ('Step responses up and down', _img(figs / 'steps.png')),
+        ('Current-flow hysteresis with friction', _table(
+            ['model', 'settled q_l, from below minus from above, at 50 % [% FS]'],
+            [[k, f'{v:.3f}'] for k, v in hyst.items()]) + _img(figs / 'hysteresis.png')),
+        ('EMC against PI (closed loop through the nodes)', _table(head, lrows)
+         + _img(figs / 'emc_vs_pi.png')),
+        ('Model analysis (section IV)', f'<pre>{html.escape(modal)}</pre>'
+         f'<details><summary>full analysis</summary><pre>{html.escape(analysis_text)}'
+         f'</pre></details>'),
+        ('Run', _table(['stage', 'wall time [s]'], [[k, f'{v:.1f}'] for k, v in walls.items()])
+         + f'<p>Bags (rosbag2, MCAP): <code>{html.escape(str(bag_dir.resolve()))}</code>; '
+           '<code>ros2 bag info</code> and <code>ros2 bag play</code> read them.</p>'),
+    ]
+
+
+def summary(ident, truth: dict, loops: dict, walls: dict) -> dict:
+    """The run's numbers for ``summary.json`` (SI; the closed-loop traces left out)."""
+    p = ident.pooled
+    return {'identification': {'G0': p.mean['G0'], 'G0_std': p.std['G0'],
+                               'tau': p.mean['tau'], 'tau_std': p.std['tau'],
+                               'td': p.mean['td'], 'td_std': p.std['td'],
+                               'sets': len(ident.sets)},
+            'plant': truth,
+            'closed_loop': {k: {kk: vv for kk, vv in v.items() if kk != 'y'}
+                            for k, v in loops.items()},
+            'wall_time_s': walls}
+
+
+# ---- the page -------------------------------------------------------------------------------
+
+def _img(path: Path) -> str:
+    """A PNG file inlined as a figure (the page stands on its own)."""
+    data = base64.b64encode(path.read_bytes()).decode()
+    return (f'<figure><img src="data:image/png;base64,{data}" alt="{path.name}">'
+            f'<figcaption>{html.escape(path.name)}</figcaption></figure>')
+
+
+def _table(head, rows) -> str:
+    """An HTML table, every cell escaped."""
+    h = ''.join(f'<th>{html.escape(str(x))}</th>' for x in head)
+    body = ''.join('<tr>' + ''.join(f'<td>{html.escape(str(x))}</td>' for x in r) + '</tr>'
+                   for r in rows)
+    return f'<table><tr>{h}</tr>{body}</table>'
+
+
+def write_html(run_dir: Path, sections: list[tuple[str, str]]) -> Path:
+    """Write ``report.html`` in ``run_dir`` from ``(title, HTML body)`` sections."""
+    css = ('body{font-family:sans-serif;max-width:1200px;margin:auto;padding:1em}'
+           'table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;'
+           'padding:3px 8px;text-align:right}th{background:#eee}img{max-width:100%}'
+           'pre{background:#f6f6f6;padding:.6em;overflow-x:auto;font-size:12px}')
+    parts = [f'<!doctype html><html><head><meta charset="utf-8"><title>hydropump report</title>'
+             f'<style>{css}</style></head><body><h1>hydropump: the paper end to end</h1>']
+    for title, body in sections:
+        parts.append(f'<h2>{html.escape(title)}</h2>{body}')
+    parts.append('</body></html>')
+    path = run_dir / 'report.html'
+    path.write_text('\n'.join(parts))
+    return path
