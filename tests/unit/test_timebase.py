@@ -175,6 +175,20 @@ def test_watchdog_holds_then_commands_the_safe_current_then_resumes(ctrl_config,
                                             abs=2e-3)
 
 
+def test_a_restart_waits_for_the_whole_operating_point(ctrl_config, params):
+    """Late measurements (a loaded machine) never make a bumpless start from a guess."""
+    clock = Clock()
+    sup = Supervisor(ctrl_config, clock=clock, log=lambda *a: None)
+    sup.activate()
+    sup.clock(0, 100)
+    clock.t += 0.5  # long past the stale wait, with nothing measured yet
+    assert sup.measurement('line_pressure', 2e7, stamp_ns=0) is None
+    assert sup.measurement('load_pressure', 1.5e7, stamp_ns=0) is None
+    q = 0.4 * params.Q_max
+    out = sup.measurement('line_flow', q, source_ns=200)
+    assert out.command == pytest.approx(sup.ctrl._pump.current(q), abs=2e-3)
+
+
 def test_measurement_gate_rejects_faults(ctrl_config):
     sup = Supervisor(ctrl_config, clock=Clock(), log=lambda *a: None)
     sup.measurement('line_flow', math.nan, source_ns=1)

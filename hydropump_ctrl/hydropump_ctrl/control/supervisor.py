@@ -285,6 +285,9 @@ class Supervisor:
         if due is None or not self._running():
             return None
         fresh = all(self._fresh(t, due) for t in self._required())
+        if not fresh and self._needs_reset and not all(t in self._meas
+                                                       for t in self._required()):
+            return None  # a (re)start needs the whole operating point, never a guess
         if not fresh and self._clock() - self._due_wall < self.STALE_WAIT:
             return None
         if not fresh:
