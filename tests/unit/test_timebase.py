@@ -122,11 +122,14 @@ def test_a_stale_instant_is_updated_after_the_wait(ctrl_config, params):
     clock = Clock()
     sup = Supervisor(ctrl_config, clock=clock, log=lambda *a: None)
     sup.activate()
-    sup.clock(0, 100)
-    assert sup.measurement('line_pressure', 2e7, stamp_ns=0) is None
-    clock.t += 0.05  # the flow of t = 0 never comes
-    out = sup.measurement('load_pressure', 1.5e7, stamp_ns=0)
-    assert out is not None and sup.counts['stale_updates'] == 1
+    for k in range(6):
+        _feed(sup, k, 0.5 * params.Q_max)   # a start on the whole operating point
+    sup.clock(10 * MS, 10 ** 12 + 10_000)
+    assert sup.measurement('line_pressure', 2e7, stamp_ns=10 * MS) is None
+    clock.t += 0.05  # the flow of t = 10 ms never comes
+    out = sup.measurement('load_pressure', 1.5e7, stamp_ns=10 * MS)
+    assert out is not None and out.stamp_ns == 10 * MS
+    assert sup.counts['stale_updates'] == 1
 
 
 def test_a_restarted_simulator_resumes_bumpless_within_one_period(ctrl_config, params):
@@ -185,6 +188,7 @@ def test_a_restart_waits_for_the_whole_operating_point(ctrl_config, params):
     assert sup.measurement('line_pressure', 2e7, stamp_ns=0) is None
     assert sup.measurement('load_pressure', 1.5e7, stamp_ns=0) is None
     q = 0.4 * params.Q_max
+    assert sup.set_reference(q) is None
     out = sup.measurement('line_flow', q, source_ns=200)
     assert out.command == pytest.approx(sup.ctrl._pump.current(q), abs=2e-3)
 
