@@ -99,6 +99,8 @@ class Supervisor:
     #: Steady time [s] after a control instant after which an update uses the latest values,
     #: for a free-running simulator whose samples may never carry ``t_K`` exactly.
     STALE_WAIT = 0.02
+    #: Steady time [s] of measurements without a ``/clock`` after which time is wall time.
+    CLOCK_WAIT = 1.0
     THROTTLE = 2.0
 
     def __init__(self, config: ControllerConfig, watchdog: Watchdog = Watchdog(), *,
@@ -118,6 +120,7 @@ class Supervisor:
         self.mode_state = 'running'
         self._pending: ControllerConfig | None = None
         self._last_rx: float | None = None
+        self._first_rx: float | None = None
         self._clear_time()
 
     def _clear_time(self) -> None:
@@ -154,6 +157,8 @@ class Supervisor:
         """A measurement sample (SI, absolute pressures): with its header stamp, or, for an
         unstamped topic, its DDS source timestamp."""
         self._last_rx = self._clock()
+        if self._first_rx is None:
+            self._first_rx = self._last_rx
         if self.mode_state != 'running':
             self._resume()
         lo, hi = PLAUSIBLE.get(topic, (-math.inf, math.inf))
@@ -187,13 +192,20 @@ class Supervisor:
             self._due_wall = self._clock()
         return self._maybe_update()
 
-    def wall_tick(self, now_ns: int) -> Output | None:
-        """The steady timer's tick (no ``/clock`` in the graph): update with the latest
-        values, stamped ``now_ns`` (the node's wall time)."""
-        if self.time.present or not self._running():
+    def wall_tick(self, now_ns: int, clock_publishers: int = 0) -> Output | None:
+        """The steady timer's tick: where no ``/clock`` exists, update with the latest values,
+        stamped ``now_ns`` (the node's wall time).
+
+        Wall time only once measurements have come for :attr:`CLOCK_WAIT` with no
+        ``/clock`` and no ``/clock`` publisher in the graph (``clock_publishers``): a
+        simulator's measurements may arrive before its ``/clock`` is discovered, and its
+        graph must never get a command in wall time."""
+        if self.time.present or clock_publishers or not self._running():
             return None
         if not all(t in self._meas for t in self._required()):
             return None  # nothing to control on yet (no simulator, no sensors)
+        if self._clock() - self._first_rx < self.CLOCK_WAIT:
+            return None
         steady_ns = int(self._clock() * 1e9)
         dt = ((steady_ns - self._t_prev) * 1e-9 if self._t_prev is not None
               else self.config.period)

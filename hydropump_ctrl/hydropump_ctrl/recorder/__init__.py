@@ -57,7 +57,8 @@ class RecorderConfig:
                                default=0.25)
     idle_timeout: float = spec('s', 'steady-clock silence after which a topic no longer holds '
                                'the others back', 0.05, 60.0, default=1.0)
-    clock_wait: float = spec('s', 'how long a bag waits for a /clock before it records in '
-                             'wall time', 0.0, 60.0, default=1.0)
+    clock_wait: float = spec('s', 'how long after its first message a bag with no /clock '
+                             'publisher in the graph waits before it records in wall time',
+                             0.0, 60.0, default=1.0)
     take_batch: int = spec('-', 'messages taken per topic per pass of the take loop', 1,
                            100000, default=200)

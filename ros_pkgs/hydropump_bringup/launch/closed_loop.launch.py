@@ -1,66 +1,86 @@
 """Simulator, controller and recorder of one pump, in one namespace.
 
     ros2 launch hydropump_bringup closed_loop.launch.py namespace:=pump1 \
-        sensor_profile:=<share>/config/bench.yaml lock_step:=true
+        sensor_profile:=<share>/config/bench.yaml lock_step:=true bag:=/tmp/run1
 
-The simulator owns simulation time (it publishes /clock); the controller and the recorder run
-on it when use_sim_time is true. The controller is a lifecycle node; autostart configures and
-activates it. Without ros2 launch, ``hydropump-graph`` starts the same graph.
+The simulator owns simulation time (it publishes /clock): the controller and the recorder
+follow it whatever use_sim_time says (docs/ros.md, "rules of time"); use_sim_time only changes
+the ROS clock of the nodes. One simulator per ROS domain: a second pump needs its own
+ROS_DOMAIN_ID. Without ros2 launch, ``hydropump-graph`` starts the same graph with the same
+arguments. Bags go to ``bag`` (an absolute path, or relative to the folder ros2 launch runs
+in); empty: ``bags/recorder_<time>`` there. The recorder logs the absolute path.
 """
 
 import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument
-from launch.conditions import IfCondition
-from launch.substitutions import LaunchConfiguration, PythonExpression
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import LifecycleNode, Node
+
+# Launch arguments: (name, default, description). Empty paths mean the node's own default.
+ARGUMENTS = [
+    ('namespace', '', 'namespace of the suite, e.g. pump1'),
+    ('use_sim_time', 'false', 'ROS clock of the nodes on /clock (the suite follows /clock '
+                              'anyway)'),
+    ('params_file', '{config}/pump.yaml', 'plant parameters (ROS 2 params file)'),
+    ('sensor_profile', '{config}/sensors.yaml', 'sensor profile; config/bench.yaml is the '
+                                                'test bench'),
+    ('controller_params', '{config}/controller.yaml', 'controller parameters (from '
+                                                      'hydropump design)'),
+    ('scenario_file', '', 'load pressure, aperture and shaft speed scheduled in simulation '
+                          'time'),
+    ('lock_step', 'false', 'simulator advances one control period per command'),
+    ('real_time_factor', '1.0', 'simulator pacing; 0 = as fast as possible'),
+    ('start_paused', 'false', 'simulator waits for ~/pause false before t = 0'),
+    ('autostart', 'true', 'controller configures and activates at start-up'),
+    ('log_level', 'info', 'log level of every node (debug, info, warn, error)'),
+    ('record', 'true', 'start the recorder'),
+    ('topics', '', "topics the recorder records, comma-separated; empty = the suite's "
+                   'measurement and command topics'),
+    ('bag', '', 'bag folder of the recorder; empty = bags/recorder_<time> in the working '
+                'directory'),
+    ('compression', 'zstd', 'MCAP chunk compression of the bag: zstd or none'),
+]
+
+
+def _nodes(context):
+    """The three nodes, from the launch arguments' values (empty ones are left to the nodes'
+    own defaults)."""
+    a = {name: context.perform_substitution(LaunchConfiguration(name))
+         for name, _, _ in ARGUMENTS}
+
+    def flag(name):
+        return a[name].strip().lower() == 'true'
+
+    common = {'namespace': a['namespace'], 'output': 'screen',
+              'ros_arguments': ['--log-level', a['log_level']]}
+    sim_time = {'use_sim_time': flag('use_sim_time')}
+    sim = {'lock_step': flag('lock_step'), 'real_time_factor': float(a['real_time_factor']),
+           'start_paused': flag('start_paused')}
+    if a['scenario_file']:
+        sim['scenario_file'] = a['scenario_file']
+    rec = {'compression': a['compression']}
+    if a['bag']:
+        rec['output'] = a['bag']
+    if a['topics'].strip():
+        rec['topics'] = [t.strip() for t in a['topics'].split(',') if t.strip()]
+    nodes = [
+        Node(package='hydropump_ros', executable='simulator', name='simulator', **common,
+             parameters=[a['params_file'], a['sensor_profile'], sim_time, sim]),
+        LifecycleNode(package='hydropump_ros', executable='controller', name='controller',
+                      **common, parameters=[sim_time, {'config_file': a['controller_params'],
+                                                       'autostart': flag('autostart')}]),
+    ]
+    if flag('record'):
+        nodes.append(Node(package='hydropump_ros', executable='recorder', name='recorder',
+                          **common, parameters=[sim_time, rec]))
+    return nodes
 
 
 def generate_launch_description():
     config = os.path.join(get_package_share_directory('hydropump_bringup'), 'config')
-    namespace = LaunchConfiguration('namespace')
-    use_sim_time = LaunchConfiguration('use_sim_time')
-    params_file = LaunchConfiguration('params_file')
-    sensor_profile = LaunchConfiguration('sensor_profile')
-    controller_params = LaunchConfiguration('controller_params')
-    sim_time = {'use_sim_time': PythonExpression(["'", use_sim_time, "' == 'true'"])}
-
-    args = [
-        DeclareLaunchArgument('namespace', default_value='',
-                              description='namespace of the suite, e.g. pump1'),
-        DeclareLaunchArgument('use_sim_time', default_value='true',
-                              description='controller and recorder on the simulator clock'),
-        DeclareLaunchArgument('params_file', default_value=os.path.join(config, 'pump.yaml'),
-                              description='plant parameters (ROS 2 params file)'),
-        DeclareLaunchArgument('sensor_profile', default_value=os.path.join(config,
-                                                                           'sensors.yaml'),
-                              description='sensor profile; config/bench.yaml is the test bench'),
-        DeclareLaunchArgument('controller_params',
-                              default_value=os.path.join(config, 'controller.yaml'),
-                              description='controller parameters'),
-        DeclareLaunchArgument('lock_step', default_value='false',
-                              description='simulator advances one control period per command'),
-        DeclareLaunchArgument('real_time_factor', default_value='1.0',
-                              description='simulator pacing; 0 = as fast as possible'),
-        DeclareLaunchArgument('bag', default_value='', description='recorder output directory'),
-        DeclareLaunchArgument('record', default_value='true', description='start the recorder'),
-    ]
-    simulator = Node(
-        package='hydropump_ros', executable='simulator', name='simulator',
-        namespace=namespace, output='screen',
-        parameters=[params_file, sensor_profile,
-                    {'lock_step': PythonExpression(["'", LaunchConfiguration('lock_step'),
-                                                    "' == 'true'"]),
-                     'real_time_factor': LaunchConfiguration('real_time_factor')}])
-    controller = LifecycleNode(
-        package='hydropump_ros', executable='controller', name='controller',
-        namespace=namespace, output='screen',
-        parameters=[controller_params, sim_time, {'autostart': True}])
-    recorder = Node(
-        package='hydropump_ros', executable='recorder', name='recorder',
-        namespace=namespace, output='screen',
-        parameters=[sim_time, {'output': LaunchConfiguration('bag')}],
-        condition=IfCondition(LaunchConfiguration('record')))
-    return LaunchDescription(args + [simulator, controller, recorder])
+    args = [DeclareLaunchArgument(name, default_value=default.format(config=config),
+                                  description=desc) for name, default, desc in ARGUMENTS]
+    return LaunchDescription(args + [OpaqueFunction(function=_nodes)])

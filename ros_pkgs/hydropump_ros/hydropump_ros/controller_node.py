@@ -104,8 +104,8 @@ class ControllerNode(bridge.ExplainedParameters, LifecycleNode):
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         wall = Clock(clock_type=ClockType.SYSTEM_TIME)
         self._timers = [
-            self.create_timer(cfg.period, lambda: self._publish(
-                self.sup.wall_tick(wall.now().nanoseconds)), clock=steady),
+            self.create_timer(cfg.period, lambda: self._publish(self.sup.wall_tick(
+                wall.now().nanoseconds, self.count_publishers('/clock'))), clock=steady),
             self.create_timer(0.05, lambda: self._publish(self.sup.check_watchdog()),
                               clock=steady),
             self.create_timer(1.0, self._publish_diagnostics, clock=steady)]

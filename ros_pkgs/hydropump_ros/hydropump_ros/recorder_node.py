@@ -84,7 +84,6 @@ class _Session:
         self.path = path
         self.writer = BagWriter(path, compression=cfg.compression,
                                 chunk_period=cfg.flush_period).open()
-        self.opened = time.monotonic()
         self.seq: Sequencer | None = None
         self.early: list = []                       # messages before the time base is known
         self.last_pub: dict[str, int] = {}          # topic -> last publication sequence number
@@ -98,7 +97,7 @@ class _Session:
             self.seq.matched(topic)
         early, self.early = self.early, []
         for item in early:
-            self._feed(*item)
+            self._feed(*item[:5])
 
     def message(self, topic: str, stamped: bool, data: bytes, info: dict) -> None:
         seq_no = info.get('publication_sequence_number')
@@ -109,7 +108,7 @@ class _Session:
             self.last_pub[topic] = seq_no
         item = (topic, stamped, data, info, time.time_ns())
         if self.seq is None:
-            self.early.append(item)
+            self.early.append(item + (time.monotonic(),))
         else:
             self._feed(*item)
 
@@ -305,9 +304,10 @@ class RecorderNode(bridge.ExplainedParameters, Node):
         if req is not None and not req[2]:
             req = None  # the stop has not swept the queues yet
         if s.seq is None:
-            wait = time.monotonic() - s.opened
-            if s.early and wait > self.cfg.clock_wait and self._io.count_publishers(
-                    '/clock') == 0:
+            # Wall time only after clock_wait of messages with no /clock publisher: a
+            # simulator's measurements may come before its /clock is discovered.
+            if s.early and time.monotonic() - s.early[0][5] > self.cfg.clock_wait and \
+                    self._io.count_publishers('/clock') == 0:
                 s.start_sequencer('wall')
             elif req is not None:
                 self._closed.append((self._close(s, 'stop'), s.writer.count))
