@@ -121,6 +121,7 @@ class Supervisor:
         self._pending: ControllerConfig | None = None
         self._last_rx: float | None = None
         self._first_rx: float | None = None
+        self._wall = False
         self._clear_time()
 
     def _clear_time(self) -> None:
@@ -206,6 +207,10 @@ class Supervisor:
             return None  # nothing to control on yet (no simulator, no sensors)
         if self._clock() - self._first_rx < self.CLOCK_WAIT:
             return None
+        if not self._wall:
+            self._wall = True
+            self._log('info', 'no /clock in the graph: updates on the steady timer, stamped '
+                              'with wall time')
         steady_ns = int(self._clock() * 1e9)
         dt = ((steady_ns - self._t_prev) * 1e-9 if self._t_prev is not None
               else self.config.period)

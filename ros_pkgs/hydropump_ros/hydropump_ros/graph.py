@@ -1,8 +1,10 @@
 """``hydropump-graph``: start the node graph without ``ros2 launch`` (pip-only setups).
 
-It does what ``hydropump_bringup/launch/closed_loop.launch.py`` does: simulator, controller and
-recorder in one namespace, with the same arguments, as child processes. Ctrl-C (or SIGTERM)
-stops them all; if one node exits, the others are stopped and its log is named.
+It does what ``hydropump_bringup/launch/closed_loop.launch.py`` does, with the same arguments
+(``--namespace pump1 --lock-step --bag /tmp/run1 ...``): simulator, controller and recorder in
+one namespace, each the installed executable as ``ros2 run`` starts it. Ctrl-C (or SIGTERM)
+stops them all, each with SIGINT as ``ros2 launch`` does; if one node exits, the others are
+stopped and its log is named.
 """
 
 from __future__ import annotations
@@ -20,46 +22,60 @@ from hydropump_sim.params import default_params_path
 NODES = ('simulator', 'controller', 'recorder')
 
 
-def node_command(node: str, namespace: str, ros_args: list[str]) -> list[str]:
-    """Command line of one node: this Python, the node module, ``--ros-args``."""
-    module = {'simulator': 'simulator_node', 'controller': 'controller_node',
-              'recorder': 'recorder_node'}[node]
-    cmd = [sys.executable, '-m', f'hydropump_ros.{module}', '--ros-args']
-    if namespace:
-        cmd += ['-r', f'__ns:={namespace if namespace.startswith("/") else "/" + namespace}']
-    return cmd + ros_args
+def executable(node: str) -> str:
+    """``<prefix>/lib/hydropump_ros/<node>``, as ``ros2 run`` finds it."""
+    return str(Path(sys.prefix) / 'lib' / 'hydropump_ros' / node)
+
+
+def _p(name: str, value) -> list[str]:
+    text = str(value).lower() if isinstance(value, bool) else str(value)
+    return ['-p', f'{name}:={text}']
 
 
 def graph_commands(args) -> dict[str, list[str]]:
     """The three command lines, as the launch file builds them."""
-    plant = ['--params-file', str(args.params_file)]
-    sim_args = list(plant)
+    common = ['--log-level', args.log_level]
+    if args.namespace:
+        common += ['-r', f'__ns:={"/" + args.namespace.lstrip("/")}']
+    common += _p('use_sim_time', args.use_sim_time)
+    sim = ['--params-file', str(args.params_file)]
     if args.sensor_profile:
-        sim_args += ['--params-file', str(args.sensor_profile)]
-    sim_args += ['-p', f'lock_step:={str(args.lock_step).lower()}',
-                 '-p', f'real_time_factor:={args.real_time_factor}']
-    sim_time = ['-p', f'use_sim_time:={str(args.use_sim_time).lower()}']
-    ctrl_args = sim_time + ['-p', 'autostart:=true']
+        sim += ['--params-file', str(args.sensor_profile)]
+    sim += (_p('lock_step', args.lock_step) + _p('real_time_factor', args.real_time_factor)
+            + _p('start_paused', args.start_paused))
+    if args.scenario_file:
+        sim += _p('scenario_file', args.scenario_file)
+    ctrl = _p('autostart', not args.no_autostart)
     if args.controller_params:
-        ctrl_args += ['-p', f'config_file:={args.controller_params}']
-    rec_args = sim_time + (['-p', f'output:={args.bag}'] if args.bag else [])
-    cmds = {'simulator': node_command('simulator', args.namespace, sim_args),
-            'controller': node_command('controller', args.namespace, ctrl_args),
-            'recorder': node_command('recorder', args.namespace, rec_args)}
-    return {k: v for k, v in cmds.items() if k not in (args.without or [])}
+        ctrl += _p('config_file', args.controller_params)
+    rec = _p('compression', args.compression)
+    if args.bag:
+        rec += _p('output', args.bag)
+    if args.topics:
+        rec += _p('topics', '[' + args.topics + ']')
+    cmds = {'simulator': sim, 'controller': ctrl, 'recorder': rec}
+    return {k: [executable(k), '--ros-args', *common, *v] for k, v in cmds.items()
+            if k not in (args.without or [])}
 
 
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog='hydropump-graph', description=__doc__.splitlines()[0])
     ap.add_argument('--namespace', default='', help='namespace of the suite (e.g. pump1)')
+    ap.add_argument('--use-sim-time', action='store_true',
+                    help='ROS clock of the nodes on /clock (the suite follows /clock anyway)')
     ap.add_argument('--params-file', default=None, help='plant params (default config/pump.yaml)')
     ap.add_argument('--sensor-profile', default=None, help='e.g. config/bench.yaml')
     ap.add_argument('--controller-params', default=None, help='e.g. config/controller.yaml')
-    ap.add_argument('--bag', default=None, help='bag directory of the recorder')
+    ap.add_argument('--scenario-file', default=None, help='inputs scheduled in simulation time')
     ap.add_argument('--lock-step', action='store_true', help='simulator in lock-step mode')
     ap.add_argument('--real-time-factor', type=float, default=1.0, help='0 = as fast as possible')
-    ap.add_argument('--no-sim-time', dest='use_sim_time', action='store_false',
-                    help='controller and recorder on wall time')
+    ap.add_argument('--start-paused', action='store_true', help='wait for simulator/pause false')
+    ap.add_argument('--no-autostart', action='store_true', help='leave the controller '
+                    'unconfigured (configure and activate it with its lifecycle services)')
+    ap.add_argument('--log-level', default='info', choices=('debug', 'info', 'warn', 'error'))
+    ap.add_argument('--topics', default=None, help='recorder topics, comma-separated')
+    ap.add_argument('--bag', default=None, help='bag folder of the recorder')
+    ap.add_argument('--compression', default='zstd', choices=('zstd', 'none'))
     ap.add_argument('--without', action='append', choices=NODES, help='leave a node out')
     ap.add_argument('--log-dir', default=None, help="write each node's log to <dir>/<node>.log")
     return ap
@@ -68,7 +84,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     args.params_file = args.params_file or default_params_path()
-    for name in ('params_file', 'sensor_profile', 'controller_params'):
+    for name in ('params_file', 'sensor_profile', 'controller_params', 'scenario_file'):
         value = getattr(args, name)
         if value and not Path(value).is_file():
             print(f'error: --{name.replace("_", "-")} {value}: no such file', file=sys.stderr)
@@ -88,12 +104,8 @@ def main(argv=None) -> int:
                                        if out else None)
         print(f'started {name} (pid {procs[name].pid})', flush=True)
     stopping = []
-
-    def stop(*_):
-        stopping.append(True)
-
-    signal.signal(signal.SIGINT, stop)
-    signal.signal(signal.SIGTERM, stop)
+    signal.signal(signal.SIGINT, lambda *_: stopping.append(True))
+    signal.signal(signal.SIGTERM, lambda *_: stopping.append(True))
     rc = 0
     while not stopping:
         for name, p in procs.items():
@@ -107,12 +119,15 @@ def main(argv=None) -> int:
         time.sleep(0.2)
     for p in procs.values():
         if p.poll() is None:
-            p.send_signal(signal.SIGTERM)
-    for p in procs.values():
+            p.send_signal(signal.SIGINT)
+    for name, p in procs.items():
         try:
             p.wait(timeout=10)
         except subprocess.TimeoutExpired:
+            print(f'error: node {name} did not end within 10 s of SIGINT: killed',
+                  file=sys.stderr)
             p.kill()
+            rc = 1
     return rc
 
 
