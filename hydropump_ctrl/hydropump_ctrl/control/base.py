@@ -35,7 +35,7 @@ MEASUREMENTS = {
 }
 
 
-def _value(meas: Mapping[str, float] | None, name: str) -> float | None:
+def finite_value(meas: Mapping[str, float] | None, name: str) -> float | None:
     """A finite measurement or ``None``."""
     if not meas:
         return None
@@ -163,9 +163,9 @@ class Controller:
         """
         lim = self._cfg.limits
         if current is None:
-            current = _value(meas, 'solenoid_current')
+            current = finite_value(meas, 'solenoid_current')
         if current is None:
-            q = _value(meas, self._cfg.controller.flow_signal)
+            q = finite_value(meas, self._cfg.controller.flow_signal)
             current = lim.safe_current if q is None else self._pump.current(q)
         u = min(max(float(current), lim.current_min), lim.current_max)
         self._command = u
@@ -222,10 +222,10 @@ class Controller:
 
     def _required_valid(self, meas: Mapping[str, float]) -> bool:
         if self.mode == 'flow':
-            return _value(meas, self._cfg.controller.flow_signal) is not None
+            return finite_value(meas, self._cfg.controller.flow_signal) is not None
         if self.mode == 'margin':
-            return (_value(meas, 'line_pressure') is not None
-                    and _value(meas, 'load_pressure') is not None)
+            return (finite_value(meas, 'line_pressure') is not None
+                    and finite_value(meas, 'load_pressure') is not None)
         return True
 
     @property

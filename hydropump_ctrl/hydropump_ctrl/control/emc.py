@@ -29,7 +29,7 @@ from collections import deque
 from collections.abc import Mapping
 import math
 
-from .base import _value, Controller
+from .base import Controller, finite_value
 from .design import emc_gains, line_estimator_gains
 from .embedded import LineModel, PumpModel, trajectory_step
 from .schema import ControllerConfig
@@ -107,7 +107,7 @@ class EMCController(Controller):
     def _reset(self, current: float, meas: Mapping[str, float]) -> None:
         pump, g = self._pump, self._gains
         v = pump.flow_command(current)
-        y = _value(meas, self._cfg.controller.flow_signal)
+        y = finite_value(meas, self._cfg.controller.flow_signal)
         Q = pump.steady_flow(current) if y is None else min(max(y, 0.0), pump.Q_max)
         # A steady state explains the measured flow with the disturbance (eq. 11 offset).
         self._dm = self._clip_d(Q - v) if 0.0 < Q < pump.Q_max else 0.0
@@ -118,7 +118,7 @@ class EMCController(Controller):
         self._line_corr = 0.0
         self._r = Q
         self._used_law = False
-        p_l, p_u = _value(meas, 'line_pressure'), _value(meas, 'load_pressure')
+        p_l, p_u = finite_value(meas, 'line_pressure'), finite_value(meas, 'load_pressure')
         dp = (p_l - p_u) if p_l is not None and p_u is not None else self._refs['margin']
         self._dp = self._dpr = max(dp, DP_FLOOR)
         self._pu = p_u
@@ -131,7 +131,7 @@ class EMCController(Controller):
     def _observe(self, dt: float, meas: Mapping[str, float]) -> None:
         g, hist, N = self._gains, self._hist, self._gains.N
         # Flow: the sample of t_k is the plant of t_k-N; compare it with the delayed model.
-        y = _value(meas, self._cfg.controller.flow_signal)
+        y = finite_value(meas, self._cfg.controller.flow_signal)
         v_out, v_step, dt_step = hist[N][0], hist[N - 1][0], hist[N - 1][1]
         e = None if y is None else y - self._model_output(self._Qm, v_out + self._dm)
         if self.mode == 'margin':
@@ -151,7 +151,7 @@ class EMCController(Controller):
         # Line: the pressure difference is not delayed; predictor-form estimator of the margin
         # and the load conductance (whose prediction is its present estimate).
         self._line_corr = 0.0
-        p_l, p_u = _value(meas, 'line_pressure'), _value(meas, 'load_pressure')
+        p_l, p_u = finite_value(meas, 'line_pressure'), finite_value(meas, 'load_pressure')
         if p_u is not None:
             # The load pressure is an input of eq. 9: a step in it moves the margin at once
             # while the line pressure holds (the model state is P_l, the margin is

@@ -39,7 +39,7 @@ from collections import deque
 from collections.abc import Mapping
 import math
 
-from .base import _value, Controller
+from .base import Controller, finite_value
 from .schema import ControllerConfig
 
 HOLD_FILTER = 0.05  # s, averaging of the measurement a mode switch with hold takes over
@@ -186,8 +186,9 @@ class PIController(Controller):
         self._pid[mode].align(self._command, 0.0, self._feedforward(mode))
 
     def _reset(self, current: float, meas: Mapping[str, float]) -> None:
-        self._y_flow = _value(meas, self._cfg.controller.flow_signal)
-        self._p_l, self._p_u = _value(meas, 'line_pressure'), _value(meas, 'load_pressure')
+        self._y_flow = finite_value(meas, self._cfg.controller.flow_signal)
+        self._p_l = finite_value(meas, 'line_pressure')
+        self._p_u = finite_value(meas, 'load_pressure')
         self._filtered = {m: y for m in ('flow', 'margin')
                           if (y := self._measured(m)) is not None}
         self._q_entry = self._y_flow if self._y_flow is not None else \
@@ -201,8 +202,9 @@ class PIController(Controller):
             self._align(mode)
 
     def _observe(self, dt: float, meas: Mapping[str, float]) -> None:
-        self._y_flow = _value(meas, self._cfg.controller.flow_signal)
-        self._p_l, self._p_u = _value(meas, 'line_pressure'), _value(meas, 'load_pressure')
+        self._y_flow = finite_value(meas, self._cfg.controller.flow_signal)
+        self._p_l = finite_value(meas, 'line_pressure')
+        self._p_u = finite_value(meas, 'load_pressure')
         self._active = False
         # Averaged measurements (50 ms) for a hold at a mode switch: one raw sample would
         # carry its noise (0.5 % FS, 0.3 bar on the bench) into the new reference.
