@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 import contextlib
 import functools
+import math
 import time
 
 from .diagnostics import assess, FopdtFit
@@ -96,6 +97,10 @@ def fit_fopdt(u, y, dt: float, *, method: str = 'robust', start: Sequence[float]
     start_t = None if start is None else tuple(float(s) for s in start)
     if start_t is not None and len(start_t) != 3:
         raise FitError('start must be (G0, tau, td)')
+    if start_t is not None and not (all(math.isfinite(s) for s in start_t)
+                                    and start_t[1] > 0.0 and start_t[2] >= 0.0):
+        raise FitError(f'start (G0, tau, td) = {start_t}: expected finite values, '
+                       'tau > 0 and td >= 0')
     if method == 'robust':
         est = fit_robust(u, y, dt, td_bounds=td_b, tau_bounds=tau_b, start=start_t,
                          n_tau=n_tau, dither=dither)

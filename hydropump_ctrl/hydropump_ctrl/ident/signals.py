@@ -137,10 +137,11 @@ def default_bounds(duration: float, dt: float, td_bounds=None, tau_bounds=None
         tau_bounds = (dt / 4.0, min(2.0, duration / 4.0))
     td_lo, td_hi = (float(b) for b in td_bounds)
     tau_lo, tau_hi = (float(b) for b in tau_bounds)
-    if not 0.0 <= td_lo < td_hi:
-        raise FitError(f'td bounds must satisfy 0 <= lower < upper, got {td_bounds}')
-    if not 0.0 < tau_lo < tau_hi:
-        raise FitError(f'tau bounds must satisfy 0 < lower < upper, got {tau_bounds}')
+    # The optimisers take finite bounds only.
+    if not 0.0 <= td_lo < td_hi < math.inf:
+        raise FitError(f'td bounds must satisfy 0 <= lower < upper < inf, got {td_bounds}')
+    if not 0.0 < tau_lo < tau_hi < math.inf:
+        raise FitError(f'tau bounds must satisfy 0 < lower < upper < inf, got {tau_bounds}')
     if td_hi > duration / 4.0:
         raise FitError(f'the record ({duration:.3g} s) is too short for a delay bound of '
                        f'{td_hi:.3g} s: it must be at least 4 times the bound')
