@@ -38,6 +38,18 @@ def test_design_takes_the_identified_model_and_overrides(tmp_path, capsys):
      'emc.tau_control'),
     (['design', '--params', PUMP, '--set', 'emc.tau_control', '--dry-run'], 'NAME=VALUE'),
     (['closed-loop', '--params', PUMP, '--config', '/nonexistent/c.yaml'], 'not found'),
+    (['design', '--params', PUMP, '--G0', 'nan', '--dry-run'],
+     '--G0 nan: expected a finite number > 0 (% per current range)'),
+    (['design', '--params', PUMP, '--tau', '0', '--dry-run'],
+     '--tau 0: expected a finite number > 0 (s)'),
+    (['design', '--params', PUMP, '--t-d', '-0.01', '--dry-run'],
+     '--t-d -0.01: expected a finite number >= 0 (s)'),
+    (['design', '--params', PUMP, '--set', 'emc.tau_control=[', '--dry-run'],
+     "--set 'emc.tau_control=[': the value is not valid YAML"),
+    (['design', '--params', PUMP, '--out', '/tmp/controller.txt', '--dry-run'],
+     'params file /tmp/controller.txt: use a .yaml or .yml file name'),
+    (['closed-loop', '--params', PUMP, '--set', 'controller.update_rate=300', '--no-table'],
+     'controller period 0.00333333 s is not a multiple of dt_sim 0.001 s'),
 ])
 def test_user_errors_are_one_line(capsys, argv, words):
     assert main(argv) == 2

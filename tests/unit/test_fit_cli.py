@@ -133,6 +133,11 @@ def bad_inputs(tmp_path_factory, bags):
     ('missing', [], 'no such file or directory'),
     ('good', ['--lowpass-flow', '20'], 'flow alone is filtered'),
     ('good', ['--td-bounds', '0.3', '0.1'], 'td bounds'),
+    ('good', ['--tau-bounds', '0.01', 'inf'], 'tau bounds must satisfy 0 < lower < upper < inf'),
+    ('good', ['--start', 'nan', '0.1', '0.05'], 'expected finite values, tau > 0 and td >= 0'),
+    ('good', ['--start', '100', '-0.1', '0.05'], 'start (G0, tau, td) = (100.0, -0.1, 0.05)'),
+    ('good', ['--dt', 'nan'], '--dt nan: expected a finite number > 0 (s)'),
+    ('good', ['--dt', '0'], '--dt 0: expected a finite number > 0 (s)'),
 ])
 def test_bad_input_is_one_line_and_exit_code_2(bad_inputs, capsys, case, extra, expect):
     code, out, err = _run(capsys, str(bad_inputs[case]), *extra, '--no-report',

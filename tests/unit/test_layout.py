@@ -26,18 +26,6 @@ PACKAGES = {
 # the packages like any user).
 OTHER = [ROOT / 'tests', ROOT / 'bench', ROOT / 'ros_pkgs' / 'hydropump_bringup']
 
-# Known debts outside the identification code: each entry is tolerated until its module is
-# restructured, and no new one may come in.
-KNOWN_PRIVATE = {
-    ('hydropump_ctrl.control.emc', 'hydropump_ctrl.control.base', '_value'),
-    ('hydropump_ctrl.control.pi', 'hydropump_ctrl.control.base', '_value'),
-}
-# ``cli`` registers its sub-commands with ``__import__`` and they import ``run_dir`` and
-# ``UsageError`` back from it.
-KNOWN_CYCLES = {
-    frozenset({'hydropump_ctrl.cli', 'hydropump_ctrl.fit_cli', 'hydropump_ctrl.control_cli'}),
-}
-
 
 # ---- the scan -------------------------------------------------------------------------------
 
@@ -182,22 +170,22 @@ def _project_files() -> tuple[dict[str, tuple[Path, bool]], set[str]]:
 
 def test_no_private_name_is_imported_from_another_module():
     files, modules = _project_files()
-    found = private_imports(files, modules)
-    new = [f'{files[imp][0].relative_to(ROOT)}:{line}: from {mod} import {name}'
-           for imp, mod, name, line in found if (imp, mod, name) not in KNOWN_PRIVATE]
-    assert not new, new
+    found = [f'{files[imp][0].relative_to(ROOT)}:{line}: from {mod} import {name}'
+             for imp, mod, name, line in private_imports(files, modules)]
+    assert not found, found
 
 
 @pytest.mark.parametrize('pkg', sorted(PACKAGES))
 def test_no_import_cycle_inside_a_package(pkg):
     graph = import_graph(module_files(PACKAGES[pkg], pkg))
     assert len(graph) > 3
-    new = [sorted(c) for c in cycles(graph) if c not in KNOWN_CYCLES]
-    assert not new, new
+    found = [sorted(c) for c in cycles(graph)]
+    assert not found, found
 
 
 def test_the_identification_package_takes_nothing_private_and_has_no_cycle():
-    # The identification code carries no known debt: checked on its own, without exceptions.
+    # The identification code on its own: nothing private in or out, no cycle among its
+    # modules.
     mods = module_files(PACKAGES['hydropump_ctrl'] / 'ident', 'hydropump_ctrl.ident')
     assert {'hydropump_ctrl.ident.recording', 'hydropump_ctrl.ident.robust',
             'hydropump_ctrl.ident.paper'} <= set(mods)
@@ -208,6 +196,16 @@ def test_the_identification_package_takes_nothing_private_and_has_no_cycle():
     ident = {m: {t for t in e if t.startswith('hydropump_ctrl.ident')}
              for m, e in graph.items() if m.startswith('hydropump_ctrl.ident')}
     assert not cycles(ident)
+
+
+def test_each_command_module_takes_only_the_shared_helpers_from_the_cli():
+    graph = import_graph(module_files(PACKAGES['hydropump_ctrl'], 'hydropump_ctrl'))
+    cli = 'hydropump_ctrl.cli'
+    for group in ('plant', 'fit', 'control'):
+        assert {t for t in graph[f'{cli}.{group}'] if t.startswith(cli)} == {f'{cli}._common'}
+    assert {t for t in graph[cli] if t.startswith(cli)} == {
+        f'{cli}.plant', f'{cli}.fit', f'{cli}.control'}
+    assert not {t for t in graph[f'{cli}._common'] if t.startswith('hydropump_ctrl')}
 
 
 # ---- the scan itself --------------------------------------------------------------------------

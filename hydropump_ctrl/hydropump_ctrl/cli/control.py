@@ -13,35 +13,29 @@ from pathlib import Path
 import time
 
 import numpy as np
-import yaml
 
-from hydropump_sim.params import default_params_path, load_params
+from hydropump_sim.params import load_params
+
+from ._common import (
+    add_params_option,
+    output_file,
+    overrides,
+    plant_file,
+    positive,
+    run_dir,
+    UsageError,
+)
 
 CONTROLLER_YAML = 'controller.yaml'
 BENCH_YAML = 'bench.yaml'
-
-
-def _plant_path(args) -> Path:
-    return Path(args.params) if args.params else default_params_path()
-
-
-def _overrides(items) -> dict:
-    """``--set name=value`` pairs, values read as YAML (``0.02``, ``true``, ``pi``)."""
-    from .cli import UsageError
-    out = {}
-    for item in items or ():
-        name, sep, text = item.partition('=')
-        if not sep or not name:
-            raise UsageError(f'--set {item!r}: expected NAME=VALUE, e.g. emc.tau_control=0.02')
-        out[name.strip()] = yaml.safe_load(text)
-    return out
+PARAMS_SUFFIXES = ('.yaml', '.yml')
 
 
 # --- design -----------------------------------------------------------------------------------
 
 def design_report(cfg, params) -> str:
     """Gains, eigenvalues and margins of a controller configuration, as text."""
-    from .control import design as dz
+    from ..control import design as dz
     T, m, e = cfg.period, cfg.model, cfg.emc
     g = dz.emc_gains(cfg)
     lines = ['== Embedded model (eq. 19 identified, simplified model around it) ==']
@@ -131,16 +125,20 @@ def design_report(cfg, params) -> str:
 
 
 def cmd_design(args) -> int:
-    from .control.design import design_config
+    from ..control.design import design_config
+    positive(args.G0, '--G0', '% per current range')
+    positive(args.tau, '--tau', 's')
+    positive(args.t_d, '--t-d', 's', zero=True)
+    base = overrides(args.set)
     t0 = time.perf_counter()
-    plant = _plant_path(args)
+    plant = plant_file(args)
+    out = output_file(args.out or plant.with_name(CONTROLLER_YAML), PARAMS_SUFFIXES,
+                      'params file', create=not args.dry_run)
     params = load_params(plant)
-    cfg = design_config(params, G0=args.G0, tau=args.tau, t_d=args.t_d,
-                        base=_overrides(args.set))
+    cfg = design_config(params, G0=args.G0, tau=args.tau, t_d=args.t_d, base=base)
     print(f'plant parameters: {plant}; eq. 19: G0 = {args.G0:g}, tau = {args.tau:g} s, '
           f't_d = {args.t_d:g} s\n', flush=True)
     print(design_report(cfg, params))
-    out = Path(args.out) if args.out else plant.with_name(CONTROLLER_YAML)
     if args.dry_run:
         print(f'\n(dry run: {out} not written)')
         return 0
@@ -151,7 +149,6 @@ def cmd_design(args) -> int:
               'every group.\n# model.* is the embedded model; emc.* are closed-loop '
               'eigenvalues (time constants), the\n# EMC gains follow from them; pi.* is the '
               'baseline with control_toolbox names.')
-    out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(cfg.to_ros_yaml(header))
     print(f'\nwrote {out} ({time.perf_counter() - t0:.1f} s)')
     return 0
@@ -162,9 +159,9 @@ def cmd_design(args) -> int:
 def _load_setup(args):
     from hydropump_sim.sensors import load_profile
 
-    from .control.design import design_config
-    from .control.schema import load_config
-    plant = _plant_path(args)
+    from ..control.design import design_config
+    from ..control.schema import load_config
+    plant = plant_file(args)
     params = load_params(plant)
     profile = load_profile(Path(args.profile) if args.profile
                            else plant.with_name(BENCH_YAML))
@@ -173,11 +170,11 @@ def _load_setup(args):
         cfg = load_config(cfg_path, current_limits=params.I_limits)
         source = str(cfg_path)
     elif args.config:
-        raise FileNotFoundError(f'controller parameters {cfg_path} not found')
+        raise UsageError(f'--config {cfg_path}: controller parameters not found')
     else:
         cfg = design_config(params)
         source = 'designed from the plant (no controller.yaml found)'
-    sets = _overrides(args.set)
+    sets = overrides(args.set)
     if sets:
         cfg = cfg.replace(sets)
     return params, profile, cfg, source
@@ -220,10 +217,9 @@ def _plot_pair(path: Path, title: str, runs: dict, signal: str, scale: float, un
 
 
 def cmd_closed_loop(args) -> int:
-    from .cli import run_dir
-    from .control.emc import EMCController
-    from .control.pi import PIController
-    from .experiments import cases as cs
+    from ..control.emc import EMCController
+    from ..control.pi import PIController
+    from ..experiments import cases as cs
     t0 = time.perf_counter()
     params, profile, cfg, source = _load_setup(args)
     out = run_dir(args.out, 'closed-loop')
@@ -283,7 +279,7 @@ def register(sub) -> None:
     """Add ``design`` and ``closed-loop`` to the ``hydropump`` command line."""
     d = sub.add_parser('design', help='EMC and PI design from the simplified model and eq. 19: '
                        'gains, eigenvalues, margins; writes config/controller.yaml')
-    d.add_argument('--params', help='plant params file (default: config/pump.yaml)')
+    add_params_option(d)
     d.add_argument('--G0', type=float, default=100.0, help='eq. 19 DC gain (default 100)')
     d.add_argument('--tau', type=float, default=0.1, help='eq. 19 time constant [s] '
                    '(default 0.1)')
@@ -297,7 +293,7 @@ def register(sub) -> None:
     d.set_defaults(func=cmd_design)
     c = sub.add_parser('closed-loop', help='EMC and PI against the fine model with the bench '
                        'sensors: side-by-side plots and the target table')
-    c.add_argument('--params', help='plant params file (default: config/pump.yaml)')
+    add_params_option(c)
     c.add_argument('--profile', help='sensor profile (default: bench.yaml beside the plant '
                    'file)')
     c.add_argument('--config', help='controller params (default: controller.yaml beside the '

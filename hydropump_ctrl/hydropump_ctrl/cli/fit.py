@@ -15,6 +15,8 @@ import argparse
 import sys
 import time
 
+from ._common import add_params_option, plant_file, positive, run_dir
+
 
 def register(subparsers) -> None:
     """Add the ``fit`` sub-command to the ``hydropump`` parser."""
@@ -29,8 +31,7 @@ def register(subparsers) -> None:
     p.add_argument('--current-topic', default='solenoid_current',
                    help='current topic (absolute A); solenoid_current_cmd for the command')
     p.add_argument('--flow-topic', default='line_flow', help='flow topic (m^3/s)')
-    p.add_argument('--params', help='plant params file for the normalisation '
-                                    '(default: config/pump.yaml)')
+    add_params_option(p, 'for the normalisation')
     p.add_argument('--json', action='store_true',
                    help='print the JSON result on stdout instead of the table')
     p.add_argument('--out', help='report folder (default: out/fit-<time>)')
@@ -70,12 +71,14 @@ def _warn(msg: str) -> None:
 
 def cmd_fit(args) -> int:
     """Run the ``fit`` sub-command; user errors propagate as one-line exceptions."""
-    from hydropump_sim.params import default_params_path, load_params
+    from hydropump_sim.params import load_params
 
-    from .ident import fit_recordings, format_table, read_recordings, to_json, write_report
+    from ..ident import fit_recordings, format_table, read_recordings, to_json, write_report
 
+    if args.dt is not None:
+        positive(args.dt, '--dt', 's')
     t0 = time.perf_counter()
-    params = load_params(args.params or default_params_path())
+    params = load_params(plant_file(args))
     recs = []
     for path, rec in zip(args.bags, read_recordings(
             args.bags, current_topic=args.current_topic, flow_topic=args.flow_topic,
@@ -101,7 +104,6 @@ def cmd_fit(args) -> int:
     else:
         print(format_table(ident))
     if not args.no_report:
-        from .cli import run_dir
         out = run_dir(args.out, 'fit')
         write_report(ident, out, params=params, plots=not args.no_plots,
                      per_set=args.plots_per_set)

@@ -1,0 +1,7 @@
+"""``python -m hydropump_ctrl.cli``: the ``hydropump`` command."""
+
+import sys
+
+from . import main
+
+sys.exit(main())
