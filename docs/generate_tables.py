@@ -1,0 +1,67 @@
+"""Write the parameter tables of README.md and docs/parameters.md from the schemas.
+
+    .venv/bin/python docs/generate_tables.py          # rewrite the tables in place
+    .venv/bin/python docs/generate_tables.py --check  # exit 1 if a table is out of date
+
+Each table sits between ``<!-- BEGIN params:NAME -->`` and ``<!-- END params:NAME -->``; a
+test runs the check, so the tables cannot drift from the schemas (the one place the
+defaults live).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+import re
+import sys
+
+from hydropump_ctrl.control.schema import ControllerConfig
+from hydropump_ctrl.control.supervisor import ControllerNodeConfig
+from hydropump_ctrl.recorder import RecorderConfig
+from hydropump_sim.params import Params
+from hydropump_sim.runner import SimulatorConfig
+from hydropump_sim.schema import markdown_table, specs_of
+from hydropump_sim.sensors import SensorConfig
+
+ROOT = Path(__file__).resolve().parents[1]
+TABLES = {
+    'simulator': SimulatorConfig, 'controller': ControllerNodeConfig,
+    'recorder': RecorderConfig, 'plant': Params, 'sensors': SensorConfig,
+    'control': ControllerConfig,
+}
+FILES = (ROOT / 'README.md', ROOT / 'docs' / 'parameters.md')
+
+
+def table(name: str) -> str:
+    return markdown_table(specs_of(TABLES[name]), f'{name} parameter')
+
+
+def render(text: str) -> str:
+    """``text`` with every marked table rewritten from its schema."""
+    def sub(m):
+        return f'{m.group(1)}\n{table(m.group(2))}\n{m.group(3)}'
+    return re.sub(r'(<!-- BEGIN params:(\w+) -->)\n(?:.*?\n)?(<!-- END params:\2 -->)', sub,
+                  text, flags=re.S)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('--check', action='store_true', help='only check; exit 1 if out of date')
+    args = ap.parse_args(argv)
+    stale = []
+    for path in FILES:
+        text = path.read_text()
+        new = render(text)
+        if new != text:
+            stale.append(path)
+            if not args.check:
+                path.write_text(new)
+    if args.check and stale:
+        print('out of date: ' + ', '.join(str(p.relative_to(ROOT)) for p in stale)
+              + ' (run docs/generate_tables.py)', file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
