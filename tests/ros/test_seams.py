@@ -269,3 +269,30 @@ def test_a_controller_resumes_bumplessly_when_its_simulator_restarts(nodes, test
     assert np.count_nonzero((t >= t[restart]) & (t < t[restart] + 0.3)) >= 10
     assert np.max(np.abs(u[restart:] - steady)) < 0.02  # no swing
     assert 'went back' in ctrl.log()
+
+
+def test_the_nodes_declare_their_schemas_defaults(nodes, test_node):
+    """What `ros2 param get` shows on nodes started with no parameters is what the schemas
+    (and so the README's tables) say, and the plant is config/pump.yaml."""
+    from rcl_interfaces.srv import GetParameters
+    from rclpy.parameter import parameter_value_to_python
+
+    from hydropump_ctrl.control.supervisor import ControllerNodeConfig
+    from hydropump_ctrl.recorder import RecorderConfig
+    from hydropump_sim.params import load_params
+    from hydropump_sim.runner import SimulatorConfig
+    from hydropump_sim.schema import defaults_of
+
+    from .rosutil import call
+    for name in ('simulator', 'controller', 'recorder'):
+        nodes.start(name)
+    expected = {'simulator': {**defaults_of(SimulatorConfig),
+                              **load_params(PUMP_YAML).flat()},
+                'controller': defaults_of(ControllerNodeConfig),
+                'recorder': defaults_of(RecorderConfig)}
+    for node, values in expected.items():
+        client = test_node.create_client(GetParameters, f'{node}/get_parameters')
+        names = sorted(values)
+        got = call(test_node, client, GetParameters.Request(names=names), timeout=60).values
+        declared = dict(zip(names, (parameter_value_to_python(v) for v in got)))
+        assert declared == {k: values[k] for k in names}, node
