@@ -118,7 +118,7 @@ def test_bag_is_rosbag2_exact_complete_and_reads_with_an_independent_decoder(
     assert info['ros_distro'] == 'jazzy'
     assert info['relative_file_paths'] == ['run_0.mcap']
     assert info['custom_data']['time_base'] == 'simulation'
-    assert info['custom_data']['messages_lost'] == '0'
+    assert info['custom_data']['messages_lost'] == '0', info['custom_data']
     # One clock: the bag lasts as long as the run did in simulation time.
     assert info['starting_time']['nanoseconds_since_epoch'] == 0
     assert info['duration']['nanoseconds'] == 500_000_000

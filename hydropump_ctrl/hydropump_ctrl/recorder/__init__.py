@@ -3,7 +3,9 @@
 - :class:`RecorderConfig`: the recorder node's parameters (one schema, defaults included);
 - :class:`~.sequencer.Sequencer`: log times by the rule of time and the per-topic watermark
   that writes a bag in log-time order, also when the recorder lags;
-- :class:`~.bag.BagWriter`: rosbag2 bags as rosbag2 Jazzy writes them (MCAP).
+- :class:`~.bag.BagWriter`: rosbag2 bags as rosbag2 Jazzy writes them (MCAP);
+- :class:`~.session.Recorder`: the bags of a recording node and their rules (time base,
+  new bags on a new simulator, stop).
 
 The node (``hydropump_ros.recorder_node``) only takes the messages and the graph's QoS.
 """
@@ -16,9 +18,11 @@ from hydropump_sim.schema import spec
 
 from .bag import BagError, BagWriter, message_definition, qos_profile, unique_path
 from .sequencer import Record, Sequencer
+from .session import header_stamp, Recorder, Session
 
-__all__ = ['BagError', 'BagWriter', 'DEFAULT_TOPICS', 'Record', 'RecorderConfig', 'Sequencer',
-           'SUITE_TYPES', 'message_definition', 'qos_profile', 'unique_path']
+__all__ = ['BagError', 'BagWriter', 'DEFAULT_TOPICS', 'Record', 'Recorder', 'RecorderConfig',
+           'Sequencer', 'Session', 'SUITE_TYPES', 'header_stamp', 'message_definition',
+           'qos_profile', 'unique_path']
 
 # The suite's topics and their types; other topics are looked up in the ROS graph.
 SUITE_TYPES = {

@@ -28,6 +28,12 @@ import traceback
 STOP = threading.Event()
 
 
+def request_shutdown() -> None:
+    """End the process as a signal would (a node that finds a fatal problem after start-up
+    sets its ``exit_code`` first)."""
+    STOP.set()
+
+
 def install_signal_handlers() -> threading.Event:
     """SIGINT and SIGTERM set :data:`STOP` (again and again, harmlessly); returns it."""
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -138,9 +144,6 @@ def run(factory: Callable[[], object], *, prog: str, doc: str,
             print(f'error: {line}', file=sys.stderr)
         rclpy.try_shutdown()
         return 2
-    # A node may end itself (a fatal problem found after start-up): it sets ``exit_code``
-    # and calls ``request_shutdown()``.
-    node.request_shutdown = stop.set
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     failure: list[BaseException] = []

@@ -166,7 +166,7 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
                     f'another node publishes /clock in this ROS domain ({", ".join(others)}): '
                     'one simulator per domain (give each pump its own ROS_DOMAIN_ID)')
                 self.exit_code = 2
-                self.request_shutdown()
+                entry.request_shutdown()
                 return False
             time.sleep(0.05)
         return True
