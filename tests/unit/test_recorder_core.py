@@ -1,0 +1,235 @@
+"""The recorder without DDS: log times by the rule of time, the per-topic watermark, stalls,
+idle topics, stops, new bags on a new simulator, and the bag writer's rosbag2 layout."""
+
+import struct
+
+import pytest
+import yaml
+
+from hydropump_ctrl.recorder import (
+    BagError,
+    BagWriter,
+    header_stamp,
+    qos_profile,
+    Recorder,
+    RecorderConfig,
+    Sequencer,
+)
+from hydropump_sim.schema import build
+
+MS = 1_000_000
+
+
+class Clock:
+    def __init__(self):
+        self.t = 0.0
+
+    def __call__(self):
+        return self.t
+
+
+def _order(records):
+    return [(r.log_ns // MS, r.topic) for r in records]
+
+
+def test_unstamped_messages_wait_for_the_clock_after_them_then_leave_in_order():
+    clock = Clock()
+    seq = Sequencer(['a', 'b'], clock=clock)
+    seq.clock(0, 100)
+    seq.message('b', b'b0', source_ns=105, stamp_ns=0)
+    seq.message('a', b'a0', source_ns=110)        # unstamped: after the clock of 0 ms
+    assert list(seq.ready()) == []                # a's time is not settled yet
+    seq.clock(1 * MS, 200)
+    seq.message('b', b'b1', source_ns=205, stamp_ns=1 * MS)
+    seq.message('a', b'a1', source_ns=210)
+    seq.clock(2 * MS, 300)
+    assert _order(seq.ready()) == [(0, 'a'), (0, 'b')]   # log time, then the topic order
+    assert _order(seq.drain()) == [(1, 'a'), (1, 'b')]
+
+
+def test_a_topic_that_lags_holds_the_others_back():
+    clock = Clock()
+    seq = Sequencer(['fast', 'slow'], clock=clock)
+    seq.matched('slow')                           # a publisher, nothing delivered yet
+    for k in range(5):
+        seq.clock(k * MS, 100 * k)
+        seq.message('fast', b'f', source_ns=100 * k + 1, stamp_ns=k * MS)
+    assert list(seq.ready()) == []                # slow has a publisher: wait for it
+    seq.message('slow', b's', source_ns=450, stamp_ns=3 * MS)
+    assert _order(seq.ready()) == [(0, 'fast'), (1, 'fast'), (2, 'fast')]
+
+
+def test_a_silent_topic_stops_holding_back_after_the_idle_timeout():
+    clock = Clock()
+    seq = Sequencer(['a', 'b'], idle_timeout=1.0, clock=clock)
+    seq.matched('b')
+    seq.clock(0, 1)
+    seq.message('a', b'a', source_ns=2, stamp_ns=0)
+    seq.clock(1 * MS, 3)
+    seq.message('a', b'a', source_ns=4, stamp_ns=1 * MS)
+    assert list(seq.ready()) == []
+    clock.t = 1.5                                 # b silent for 1.5 s, a still delivering
+    seq.pass_done()
+    seq.clock(2 * MS, 5)
+    seq.message('a', b'a', source_ns=6, stamp_ns=2 * MS)
+    assert _order(seq.ready()) == [(0, 'a'), (1, 'a')]
+
+
+def test_time_the_recorder_stood_still_is_not_silence():
+    clock = Clock()
+    seq = Sequencer(['a', 'b'], idle_timeout=1.0, stall=0.05, clock=clock)
+    seq.clock(0, 1)
+    seq.message('a', b'a', source_ns=2, stamp_ns=0)
+    seq.message('b', b'b', source_ns=3, stamp_ns=0)
+    seq.pass_done()
+    clock.t = 5.0                                 # frozen (SIGSTOP) for 5 s
+    seq.pass_done()                               # the first pass after the freeze
+    seq.clock(1 * MS, 10)
+    seq.message('a', b'a', source_ns=11, stamp_ns=1 * MS)
+    # b was not silent for 5 s, the recorder was: b still holds a back...
+    assert list(seq.ready()) == []
+    seq.message('b', b'b', source_ns=12, stamp_ns=1 * MS)
+    # ...until it delivers.
+    assert _order(seq.ready()) == [(0, 'a'), (0, 'b')]
+    assert seq.buffered == 2
+
+
+def test_a_late_message_is_written_and_counted():
+    clock = Clock()
+    seq = Sequencer(['a', 'b'], idle_timeout=0.5, clock=clock)
+    seq.clock(0, 1)
+    seq.message('a', b'a', source_ns=2, stamp_ns=0)
+    seq.clock(2 * MS, 3)
+    seq.message('a', b'a', source_ns=4, stamp_ns=2 * MS)
+    seq.clock(3 * MS, 5)
+    seq.message('a', b'a', source_ns=6, stamp_ns=3 * MS)
+    assert _order(seq.ready()) == [(0, 'a'), (2, 'a')]
+    seq.message('b', b'b', source_ns=7, stamp_ns=1 * MS)    # a topic coming back late
+    assert _order(seq.drain()) == [(1, 'b'), (3, 'a')]
+    assert seq.late == 1
+
+
+def test_wall_time_bags_use_the_receive_time():
+    seq = Sequencer(['a'], mode='wall', clock=Clock())
+    seq.message('a', b'x', source_ns=5, stamp_ns=7 * MS, receive_ns=123)
+    assert [r.log_ns for r in seq.ready()] == [123]
+
+
+def test_complete_means_every_active_topic_reached_the_stop_time():
+    seq = Sequencer(['a', 'b'], clock=Clock())
+    seq.clock(0, 1)
+    seq.message('a', b'a', source_ns=2, stamp_ns=0)
+    seq.message('b', b'b', source_ns=3)
+    seq.clock(1 * MS, 10)
+    seq.message('a', b'a', source_ns=11, stamp_ns=1 * MS)
+    assert not seq.complete(1 * MS)
+    seq.message('b', b'b', source_ns=12)          # pending after the clock of 1 ms
+    assert seq.complete(1 * MS)
+
+
+def test_header_stamp_reads_cdr_in_both_byte_orders():
+    little = b'\x00\x01\x00\x00' + struct.pack('<iI', 3, 250)
+    big = b'\x00\x00\x00\x00' + struct.pack('>iI', 3, 250)
+    assert header_stamp(little) == header_stamp(big) == 3_000_000_250
+
+
+# ---- the bag writer -------------------------------------------------------------------------
+
+def test_the_bag_has_rosbag2s_layout_and_metadata(tmp_path):
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import get_typestore, Stores
+    store = get_typestore(Stores.ROS2_JAZZY)
+    Float64 = store.types['std_msgs/msg/Float64']
+    bag = tmp_path / 'run'
+    with BagWriter(bag, compression='zstd', custom_data={'who': 'test'}) as w:
+        w.add_topic('/line_flow', 'std_msgs/msg/Float64', [qos_profile()])
+        for k in range(5):
+            w.write('/line_flow', k * MS, store.serialize_cdr(Float64(data=float(k)),
+                                                              Float64.__msgtype__))
+    assert sorted(p.name for p in bag.iterdir()) == ['metadata.yaml', 'run_0.mcap']
+    text = (bag / 'metadata.yaml').read_text()
+    assert not text.endswith('\n')                # yaml-cpp writes no final newline
+    info = yaml.safe_load(text)['rosbag2_bagfile_information']
+    assert info['ros_distro'] == 'jazzy' and info['compression_format'] == ''
+    assert info['duration']['nanoseconds'] == 4 * MS and info['message_count'] == 5
+    (topic,) = info['topics_with_message_count']
+    assert topic['topic_metadata']['offered_qos_profiles'][0]['deadline'] == {
+        'sec': 9223372036, 'nsec': 854775807}
+    assert info['custom_data'] == {'who': 'test'}
+    with Reader(bag) as r:
+        values = [store.deserialize_cdr(raw, c.msgtype).data for c, _, raw in r.messages()]
+    assert values == [0.0, 1.0, 2.0, 3.0, 4.0]
+
+
+def test_a_bag_is_never_overwritten_and_bad_paths_name_the_reason(tmp_path):
+    (tmp_path / 'run').mkdir()
+    with pytest.raises(BagError, match='exists already'):
+        BagWriter(tmp_path / 'run').open()
+    (tmp_path / 'file').write_text('')
+    with pytest.raises(BagError, match='cannot create the bag'):
+        BagWriter(tmp_path / 'file' / 'run').open()
+    with pytest.raises(BagError, match="compression = 'lz4'"):
+        BagWriter(tmp_path / 'x', compression='lz4')
+
+
+# ---- the recorder's sessions -----------------------------------------------------------------
+
+class Graph:
+    def __init__(self):
+        self.types = {'/a': 'std_msgs/msg/Float64'}
+
+    def matched(self):
+        return ['/a']
+
+    def publishers(self, topic):
+        return 1
+
+    def offered_qos(self, topic):
+        return [qos_profile()]
+
+
+def _clock(ns):
+    return b'\x00\x01\x00\x00' + struct.pack('<iI', ns // 10 ** 9, ns % 10 ** 9)
+
+
+def _float():
+    return b'\x00\x01\x00\x00' + struct.pack('<d', 1.0)
+
+
+def test_a_new_simulator_closes_the_bag_and_opens_the_next(tmp_path):
+    logs = []
+    cfg = build(RecorderConfig, {'output': str(tmp_path / 'bag'), 'topics': ['/a']})
+    rec = Recorder(cfg, ['/a'], Graph(), log=lambda lvl, txt: logs.append(txt))
+    rec.start()
+    for k, src in ((5, 100), (6, 200)):
+        rec.clock(_clock(k * MS), {'source_timestamp': src})
+        rec.message('/a', False, _float(), {'source_timestamp': src + 1,
+                                            'publication_sequence_number': k})
+        rec.advance(1)
+    rec.clock(_clock(0), {'source_timestamp': 300})   # time went back
+    assert len(rec.closed) == 1 and rec.session.path.name == 'bag_1'
+    assert any('went back' in t for t in logs)
+    assert rec.request_stop(0.5)
+    rec.swept()
+    rec.advance(1)
+    assert rec.finish_stop()[0].name == 'bag_1'
+    first = yaml.safe_load((tmp_path / 'bag' / 'metadata.yaml').read_text())
+    assert first['rosbag2_bagfile_information']['custom_data']['closed_by'].startswith(
+        'simulation time went back')
+
+
+def test_gaps_in_sequence_numbers_are_counted_as_lost(tmp_path):
+    cfg = build(RecorderConfig, {'output': str(tmp_path / 'bag'), 'topics': ['/a']})
+    rec = Recorder(cfg, ['/a'], Graph(), log=lambda *a: None)
+    rec.start()
+    rec.clock(_clock(0), {'source_timestamp': 1})
+    for n in (1, 2, 5, 6):
+        rec.message('/a', False, _float(), {'source_timestamp': 1 + n,
+                                            'publication_sequence_number': n})
+    rec.request_stop(0.1)
+    rec.swept()
+    path, count = rec.finish_stop()
+    info = yaml.safe_load((path / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert count == 4
+    assert info['custom_data']['messages_lost'] == '2'
+    assert info['custom_data']['lost./a'] == '2'
