@@ -77,11 +77,12 @@ class Proc:
         self.wait()
 
 
-def _wait_until(predicate, timeout, what):
+def _wait_until(predicate, timeout, what, why=None):
     end = time.monotonic() + timeout
     while not predicate():
         if time.monotonic() > end:
-            raise AssertionError(f'timed out after {timeout:g} s waiting for {what}')
+            raise AssertionError(f'timed out after {timeout:g} s waiting for {what}'
+                                 + (f'\n{why()}' if why else ''))
         time.sleep(0.05)
 
 
@@ -97,7 +98,9 @@ def test_every_node_ends_cleanly_on_ctrl_c_twice_and_sigterm(tmp_path, domains):
                  for (n, _), d in zip(cases, ids)]
         try:
             _wait_until(lambda procs=procs: all(p.ready() for p in procs), 120,
-                        'every node to be ready')
+                        'every node to be ready',
+                        lambda procs=procs: '\n'.join(f'{p.name}: {p.log()[-300:]}'
+                                                       for p in procs if not p.ready()))
             sent = {}
             for p, (_, pattern) in zip(procs, cases):
                 sent[p] = time.time()

@@ -44,6 +44,10 @@ class BagError(HydropumpError, OSError):
     """A bag that cannot be written as asked."""
 
 
+class BagExistsError(BagError):
+    """The bag folder exists already (a bag is never overwritten)."""
+
+
 def qos_profile(history: str = 'unknown', depth: int = 0, reliability: str = 'reliable',
                 durability: str = 'volatile', liveliness: str = 'automatic',
                 deadline: Mapping | None = None, lifespan: Mapping | None = None,
@@ -170,10 +174,22 @@ class BagWriter:
 
     def open(self) -> BagWriter:
         """Create the folder and the MCAP file; raise :class:`BagError` with the reason."""
+        exists = BagExistsError(f'{self.path}: exists already (a bag is never overwritten)')
         if self.path.exists():
-            raise BagError(f'{self.path}: exists already (a bag is never overwritten)')
+            raise exists
         try:
-            self.path.mkdir(parents=True)
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise BagError(f'{self.path}: cannot create the bag: {exc.strerror or exc}') \
+                from None
+        try:
+            self.path.mkdir()  # atomic: two recorders never share a folder
+        except FileExistsError:
+            raise exists from None
+        except OSError as exc:
+            raise BagError(f'{self.path}: cannot create the bag: {exc.strerror or exc}') \
+                from None
+        try:
             self._fh = open(self.path / self.file_name, 'xb')  # noqa: SIM115 - closed in close()
         except OSError as exc:
             raise BagError(f'{self.path}: cannot create the bag: {exc.strerror or exc}') \
@@ -286,3 +302,16 @@ def unique_path(path: str | os.PathLike) -> Path:
         path = base.with_name(f'{base.name}_{n}')
         n += 1
     return path
+
+
+def open_unique(path: str | os.PathLike, **kw) -> BagWriter:
+    """An open :class:`BagWriter` at ``path`` or the first free ``path_<n>``, also when
+    another recorder picks a name at the same moment."""
+    path = unique_path(path)
+    base, n = path, 1
+    while True:
+        try:
+            return BagWriter(path, **kw).open()
+        except BagExistsError:
+            path = unique_path(base.with_name(f'{base.name}_{n}'))
+            n += 1

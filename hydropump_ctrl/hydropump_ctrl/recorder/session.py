@@ -26,7 +26,7 @@ import struct
 import time
 from typing import Any, Protocol
 
-from .bag import BagWriter, unique_path
+from .bag import open_unique
 from .sequencer import Sequencer
 
 
@@ -53,9 +53,9 @@ class Session:
     def __init__(self, rec: Recorder, path: Path):
         cfg = rec.cfg
         self.rec = rec
-        self.path = path
-        self.writer = BagWriter(path, compression=cfg.compression,
-                                chunk_period=cfg.flush_period).open()
+        self.writer = open_unique(path, compression=cfg.compression,
+                                  chunk_period=cfg.flush_period)
+        self.path = self.writer.path
         self.seq: Sequencer | None = None
         self.early: list = []                   # messages before the time base is known
         self.last_pub: dict[str, int] = {}      # topic -> last publication sequence number
@@ -164,7 +164,7 @@ class Recorder:
             out = self.output
             path = Path(out) if out else (Path('bags')
                                           / f'recorder_{datetime.now():%Y%m%d-%H%M%S}')
-            self.session = Session(self, unique_path(path))
+            self.session = Session(self, path)
             self._log('info', f'recording {len(self.topics)} topics to '
                               f'{self.session.path.resolve()}')
         return self.session.path
