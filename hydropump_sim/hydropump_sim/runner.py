@@ -87,6 +87,10 @@ class SimulatorConfig:
                               'every peer is matched first', default=False)
     pause_at: float = spec('s', 'pause once simulation time reaches this (experiments end at '
                            'an exact instant); 0 = never', 0.0, 1.0e6, default=0.0, live=True)
+    wait_subscribers: int = spec('-', 'on ~/pause false, wait (at most 10 s) until every '
+                                 'measurement publisher has this many matched subscribers, so '
+                                 "that an orchestrated run's recorder gets the first step", 0,
+                                 100, default=0, live=True)
 
     @property
     def publish_every(self) -> int:

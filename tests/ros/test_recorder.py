@@ -72,10 +72,13 @@ def _run(nodes, test_node, bag, until=0.4, schedule=None, period=0.005, during=N
     spin_until(test_node, lambda: test_node.count_publishers('line_flow') == 0 and
                test_node.count_publishers('solenoid_current_cmd') == 0, 30,
                'the graph to forget earlier simulators')
-    rec = nodes.start('recorder', '-p', f'output:={bag}', '-p', f'topics:={topics}')
+    # The simulator pauses at `until` and the recorder's stop ends the bag there: an
+    # orchestrated run gives the same bag however loaded the machine is.
+    rec = nodes.start('recorder', '-p', f'output:={bag}', '-p', f'topics:={topics}',
+                      '-p', f'stop_time:={until}')
     sim = nodes.start('simulator', '-p', 'lock_step:=true', '-p', 'lock_step_timeout:=60.0',
                       '-p', 'initial_current:=0.46', '-p', 'start_paused:=true',
-                      '-p', f'pause_at:={until}')
+                      '-p', f'pause_at:={until}', '-p', 'wait_subscribers:=1')
     driver = LockStepDriver(test_node, schedule or (lambda t: 0.46 if t < 0.1 else 0.54),
                             period)
     wait_for_subscriber(test_node, 'solenoid_current_cmd')

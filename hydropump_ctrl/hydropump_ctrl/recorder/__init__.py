@@ -66,3 +66,7 @@ class RecorderConfig:
                              0.0, 60.0, default=1.0)
     take_batch: int = spec('-', 'messages taken per topic per pass of the take loop', 1,
                            100000, default=200)
+    stop_time: float = spec('s', 'simulation time a ~/stop ends the bag at, once every topic '
+                            'has delivered up to it (an orchestrator that paused the simulator '
+                            'there gets the same bag however loaded the machine); 0 = the '
+                            'latest /clock', 0.0, 1.0e6, default=0.0, live=True)

@@ -89,6 +89,7 @@ class Sequencer:
         self._stall = stall
         self._clock = clock
         self._last_pass: float | None = None
+        self._w: int | None = -1   # the latest watermark
         self.late = 0
 
     # ---- input ---------------------------------------------------------------------------
@@ -206,7 +207,12 @@ class Sequencer:
         marks = self._marks()
         if any(m is None for m in marks):
             return -1  # an active topic with nothing resolved yet: wait
-        return min(marks) if marks else None
+        if not marks:
+            # Every topic silent (a paused simulator): nothing new can be placed, so nothing
+            # more is released; what is held goes out when data comes back, or at a stop.
+            return self._w
+        self._w = min(marks)
+        return self._w
 
     def complete(self, until_ns: int) -> bool:
         """Has every active topic delivered up to ``until_ns`` (a stop's last instant)?"""

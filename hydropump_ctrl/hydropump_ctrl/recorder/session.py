@@ -4,13 +4,19 @@
   once the time base is known, and the losses counted from the publishers' sequence numbers
   (a gap is a message lost on the way; reported, never silent).
 - **The time base of a bag**: simulation time from the first ``/clock``; wall time only once
-  messages have come for ``clock_wait`` with no ``/clock`` publisher in the graph (a
-  simulator's measurements may arrive before its ``/clock`` is discovered). A ``/clock`` under
+  messages have come for ``clock_wait`` with no ``/clock`` publisher in the graph and none
+  of them stamped in simulation time (a controller's state may arrive before the
+  simulator, or its ``/clock``, is discovered). A ``/clock`` under
   a wall-time bag, or simulation time going back (a new simulator), closes the bag and opens
   the next one; the log says why.
 - **Stop** (``~/stop``, SIGINT, SIGTERM): the caller first takes everything DDS has
-  delivered (:meth:`Recorder.swept`); nothing after the latest ``/clock`` is recorded; the
-  bag closes once every active topic has delivered up to it, or at the deadline.
+  delivered (:meth:`Recorder.swept`). Given an end time (``stop_time``), the bag ends
+  there, once every active topic has delivered up to it. Otherwise, if ``/clock`` then goes
+  quiet (a paused simulator at the end of an experiment), the bag ends at the last
+  ``/clock``, once every active topic has delivered up to it: what was still on its way is
+  in. If ``/clock`` runs on (a paced
+  run stopped by a signal), the bag ends at the ``/clock`` of the sweep: nothing after the
+  signal. Either way it closes by the deadline.
 
 The node passes a *graph* (the ROS side's answers: ``types`` by topic, ``matched()``,
 ``publishers(topic)``, ``offered_qos(topic)``) and takes the messages; everything else is
@@ -61,6 +67,7 @@ class Session:
         self.last_pub: dict[str, int] = {}      # topic -> last publication sequence number
         self.lost: dict[str, int] = {}
         self.stop_at: int | None = None         # sim ns: nothing after it is recorded
+        self.sim_stamped = False                # a stamp far from wall time: sim time
 
     @property
     def messages(self) -> int:
@@ -83,6 +90,8 @@ class Session:
             self.last_pub[topic] = seq_no
         item = (topic, stamped, data, info, time.time_ns())
         if self.seq is None:
+            if stamped and abs(header_stamp(data) - item[4]) > SIM_STAMP:
+                self.sim_stamped = True
             self.early.append(item + (time.monotonic(),))
         else:
             self._feed(*item)
@@ -131,6 +140,11 @@ class Session:
 
 Log = Callable[[str, str], None]
 
+# A stamp this far [ns] from the wall clock is simulation time (a day).
+SIM_STAMP = 86_400 * 10 ** 9
+# /clock silent this long [s] after a stop's sweep: the simulator is paused or gone.
+QUIET = 0.2
+
 
 class Recorder:
     """The recorder's sessions and their rules (see the module). Not thread-safe: the node
@@ -154,6 +168,8 @@ class Recorder:
         self.session: Session | None = None
         self.closed: list[tuple[Path, int]] = []
         self._stop: tuple[float, bool] | None = None   # (deadline, swept)
+        self._sweep_clock: int | None = None           # latest /clock at the sweep
+        self._last_clock = 0.0                          # steady time of the latest /clock
         self.output = cfg.output
 
     # ---- sessions ------------------------------------------------------------------------
@@ -202,9 +218,12 @@ class Recorder:
             self._restart('a /clock appeared: the bag so far is in wall time, the next one in '
                           'simulation time', ns, src)
             return
+        before = s.seq.time.latest
         jump = s.seq.clock(ns, src)
         if jump is not None:
             self._restart(jump.describe(), ns, src)
+        elif before is None or ns > before:
+            self._last_clock = time.monotonic()
 
     def matched(self) -> None:
         """The graph's matched publishers changed (a periodic check)."""
@@ -220,25 +239,34 @@ class Recorder:
         if s is None:
             return
         stopping = self._stop is not None and self._stop[1]
+        now = time.monotonic()
         if s.seq is None:
-            if s.early and time.monotonic() - s.early[0][5] > self.cfg.clock_wait and \
-                    clock_publishers == 0:
+            if s.early and now - s.early[0][5] > self.cfg.clock_wait and \
+                    clock_publishers == 0 and not s.sim_stamped:
                 s.start_sequencer('wall')
             elif stopping:
                 self._close('stop')
             return
         s.seq.pass_done()
+        if stopping and s.stop_at is None and s.seq.mode == 'sim':
+            deadline = self._stop[0]
+            if now - self._last_clock > QUIET:
+                s.stop_at = s.seq.time.latest          # paused: up to its last /clock
+            elif now > deadline - 2 * QUIET:
+                s.stop_at = self._sweep_clock          # running on: up to the signal
         s.write(s.seq.ready())
-        if stopping and (s.complete() or time.monotonic() > self._stop[0]):
+        if stopping and (s.stop_at is not None and s.complete() or now > self._stop[0]):
             self._close('stop')
 
     # ---- stop ----------------------------------------------------------------------------
 
-    def request_stop(self, limit: float) -> bool:
-        """Begin a stop that ends within ``limit`` s; ``False`` if not recording."""
+    def request_stop(self, limit: float, until_ns: int | None = None) -> bool:
+        """Begin a stop that ends within ``limit`` s, at simulation time ``until_ns`` if
+        given (see the module otherwise); ``False`` if not recording."""
         if self.session is None:
             return False
         self._stop = (time.monotonic() + limit, False)
+        self.session.stop_at = until_ns
         return True
 
     @property
@@ -251,10 +279,9 @@ class Recorder:
         return self._stop[0] if self._stop else 0.0
 
     def swept(self) -> None:
-        """Everything delivered is taken: nothing after the latest ``/clock`` is recorded."""
+        """Everything DDS had delivered is taken (see the module for what follows)."""
         s = self.session
-        if s is not None and s.seq is not None:
-            s.stop_at = s.seq.time.latest
+        self._sweep_clock = s.seq.time.latest if s is not None and s.seq is not None else None
         self._stop = (self._stop[0], True)
 
     def finish_stop(self) -> tuple[Path, int] | None:

@@ -43,6 +43,7 @@ from hydropump_sim.schema import spec_map, specs_of
 from . import bridge, entry
 
 STOP_LIMIT = 0.8   # s: a stop waits at most this long for messages still on their way
+END_LIMIT = 30.0   # s: ... and this long for every topic to reach a given stop_time
 
 
 def _msg_class(msgtype: str):
@@ -182,10 +183,12 @@ class RecorderNode(bridge.ExplainedParameters, Node):
 
     # ---- start / stop --------------------------------------------------------------------
 
-    def stop(self, limit: float = STOP_LIMIT):
-        """Stop recording now; close once what was sent up to the latest /clock is in."""
+    def stop(self, until: float = 0.0):
+        """Stop recording: at simulation time ``until`` [s] if given, else now (see
+        :mod:`hydropump_ctrl.recorder.session`)."""
+        limit = END_LIMIT if until > 0.0 else STOP_LIMIT
         with self._lock:
-            if not self.rec.request_stop(limit):
+            if not self.rec.request_stop(limit, int(round(until * 1e9)) if until else None):
                 return None
             self._stopped.clear()
         if self._taker.is_alive():
@@ -213,7 +216,7 @@ class RecorderNode(bridge.ExplainedParameters, Node):
         return response
 
     def _on_stop(self, request, response):
-        done = self.stop()
+        done = self.stop(self.get_parameter('stop_time').value)
         response.success = done is not None
         response.message = f'{done[0]} ({done[1]} messages)' if done else 'not recording'
         return response

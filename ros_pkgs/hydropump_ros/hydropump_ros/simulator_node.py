@@ -35,8 +35,10 @@ from hydropump_sim.sensors import load_profile, SensorConfig, SensorProfile
 from . import bridge, entry
 from .conversions import absolute, seconds_to_ns, set_stamp, stamp
 
-# How long a new simulator looks for another /clock publisher before it starts [s].
-DISCOVERY_WAIT = 0.5
+# How long a new simulator keeps looking for another /clock publisher [s]: discovery on a
+# loaded machine can take seconds. Two simulators started within this of each other both
+# refuse; a later one refuses alone.
+DISCOVERY_WINDOW = 3.0
 
 
 def all_specs():
@@ -70,6 +72,9 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         self.create_timer(self.cfg.diagnostics_period, self._publish_diagnostics,
                           clock=RosClock(clock_type=ClockType.STEADY_TIME))
         self._make_messages()
+        self._started = time.monotonic()
+        self._alone_timer = self.create_timer(0.1, self._check_alone,
+                                              clock=RosClock(clock_type=ClockType.STEADY_TIME))
         self._thread = threading.Thread(target=self._run, name='stepper', daemon=True)
         self._thread.start()
 
@@ -123,6 +128,8 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         return response
 
     def _on_pause(self, request, response):
+        if not request.data:
+            self._matched()
         self.runner.set_paused(request.data)
         response.success = True
         response.message = 'paused' if request.data else 'running'
@@ -136,11 +143,26 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
                     self.runner.set_parameter(p.name, p.value)
         return bridge.result(reason)
 
+    def _matched(self, limit: float = 10.0) -> None:
+        """Before running on: wait (at most ``limit`` s) until every measurement publisher
+        has ``wait_subscribers`` matched subscribers and every subscriber this node's graph
+        shows. A reader the other side has discovered but this one not yet would miss the
+        first steps (a recorder's ~/ready sees only its own side)."""
+        pubs = [self._pub_js, *self._pub_p.values(), *self._pub_f.values()]
+        want = self.runner.cfg.wait_subscribers
+        end = time.monotonic() + limit
+        while time.monotonic() < end:
+            if all(p.get_subscription_count() >= max(
+                    want, len(self.get_subscriptions_info_by_topic(p.topic_name)))
+                   for p in pubs):
+                return
+            time.sleep(0.01)
+        self.get_logger().warn(f'running on before every subscriber was matched (waited '
+                               f'{limit:g} s for {want} per measurement topic)')
+
     # ---- the stepping thread -------------------------------------------------------------
 
     def _run(self) -> None:
-        if not self._alone():
-            return
         cfg = self.cfg
         pace = ('lock-step' if cfg.lock_step else 'as fast as possible'
                 if cfg.real_time_factor == 0 else f'real-time factor {cfg.real_time_factor:g}')
@@ -153,23 +175,22 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
                 self.get_logger().error(f'stepping stopped: {type(exc).__name__}: {exc}')
                 raise
 
-    def _alone(self) -> bool:
+    def _check_alone(self) -> None:
         """Refuse to run beside another simulator: /clock would jump back and forth."""
-        end = time.monotonic() + DISCOVERY_WAIT
-        while time.monotonic() < end and not self._closing:
-            others = [f'{i.node_namespace.rstrip("/")}/{i.node_name}'
-                      for i in self.get_publishers_info_by_topic('/clock')
-                      if (i.node_name, i.node_namespace) !=
-                      (self.get_name(), self.get_namespace())]
-            if others:
-                self.get_logger().error(
-                    f'another node publishes /clock in this ROS domain ({", ".join(others)}): '
-                    'one simulator per domain (give each pump its own ROS_DOMAIN_ID)')
-                self.exit_code = 2
-                entry.request_shutdown()
-                return False
-            time.sleep(0.05)
-        return True
+        if time.monotonic() > self._started + DISCOVERY_WINDOW:
+            self.destroy_timer(self._alone_timer)
+            return
+        others = [f'{i.node_namespace.rstrip("/")}/{i.node_name}'
+                  for i in self.get_publishers_info_by_topic('/clock')
+                  if (i.node_name, i.node_namespace) != (self.get_name(), self.get_namespace())]
+        if others and not self._closing:
+            self.get_logger().error(
+                f'another node publishes /clock in this ROS domain ({", ".join(others)}): one '
+                'simulator per domain (give each pump its own ROS_DOMAIN_ID)')
+            self.exit_code = 2
+            self.destroy_timer(self._alone_timer)
+            self.runner.stop()
+            entry.request_shutdown()
 
     def close(self) -> None:
         """Stop stepping before the publishers and the context go."""
