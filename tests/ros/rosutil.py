@@ -100,8 +100,11 @@ class LockStepDriver:
         self.t = 0.0
         self.active = True
         self._msg = Float64
+        from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
         self.node = node
-        self.pub = node.create_publisher(Float64, topic, 10)
+        # Keep-all, as the controller's: a lagging recorder holds it back, losing nothing.
+        self.pub = node.create_publisher(Float64, topic, QoSProfile(
+            depth=1000, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_ALL))
         self.sub = node.create_subscription(Clock, '/clock', self._on_clock, 100)
 
     def destroy(self) -> None:
