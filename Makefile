@@ -12,7 +12,7 @@ SETUP_FILES := requirements.txt $(foreach p,$(PKGS) ros_pkgs/hydropump_bringup,$
 
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
-.PHONY: all demo test lint bench clean
+.PHONY: all demo test lint bench soak clean
 
 all: demo
 
@@ -38,6 +38,13 @@ test: lint
 
 bench: $(STAMP)
 	$(BIN)/python bench/run_all.py
+
+# The seam tests at full length: ten Ctrl-C / SIGTERM loops per node, twenty lock-step runs
+# with a frozen recorder and twenty with both cores loaded (about six minutes).
+soak: $(STAMP)
+	HYDROPUMP_SIGNAL_LOOPS=10 HYDROPUMP_SOAK=20 $(BIN)/python -m pytest -q \
+		tests/ros/test_seams.py::test_every_node_ends_cleanly_on_ctrl_c_twice_and_sigterm \
+		tests/ros/test_recorder.py -k 'ctrl_c or bit_identical'
 
 clean:
 	rm -rf $(VENV) build install log out

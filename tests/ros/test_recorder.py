@@ -19,7 +19,7 @@ pytestmark = pytest.mark.ros
 
 SUITE = ('solenoid_current', 'pump_flow', 'line_flow', 'load_flow', 'actuator_pressure',
          'line_pressure', 'load_pressure', 'joint_states')
-# How many repeats the determinism tests make (a soak run sets more).
+# How many repeats the determinism tests make (`make soak` sets 20).
 REPEATS = int(os.environ.get('HYDROPUMP_SOAK', '1'))
 
 

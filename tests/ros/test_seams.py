@@ -17,12 +17,12 @@ import pytest
 import yaml
 
 from ..conftest import PUMP_YAML
-from .rosutil import executable, spin_until, wait_for_publisher
+from .rosutil import executable, spin_until
 
 pytestmark = pytest.mark.ros
 
-# Signal loops per node and pattern (the soak run sets more).
-LOOPS = int(os.environ.get('HYDROPUMP_SIGNAL_LOOPS', '10'))
+# Signal loops per node and pattern: four in the suite, ten in `make soak`.
+LOOPS = int(os.environ.get('HYDROPUMP_SIGNAL_LOOPS', '4'))
 READY = {'simulator': 'ready:', 'controller': 'active: publishing', 'recorder': 'recording '}
 PLAIN = {'simulator': [], 'controller': ['-p', 'autostart:=true'], 'recorder': []}
 PATTERNS = {'sigint': [signal.SIGINT], 'sigint_twice': [signal.SIGINT, signal.SIGINT],
@@ -133,8 +133,10 @@ def test_a_plain_graph_gives_one_clock_in_the_bag(tmp_path, ros_domain, test_nod
              for n in ('recorder', 'simulator', 'controller')]
     try:
         _wait_until(lambda: all(p.ready() for p in procs), 120, 'every node to be ready')
-        spin_until(test_node, lambda: test_node.count_publishers('solenoid_current_cmd') > 0,
-                   30, 'the controller')
+        from sensor_msgs.msg import JointState
+        states = []
+        test_node.create_subscription(JointState, 'controller/state', states.append, 10)
+        spin_until(test_node, lambda: states, 60, 'the controller to control')
         time.sleep(2.0)  # two seconds of a paced run
         for p in procs:
             p.proc.send_signal(signal.SIGINT)
@@ -234,8 +236,15 @@ def test_help_prints_the_parameters_and_does_not_start(node):
 
 
 def test_a_second_simulator_in_the_domain_refuses_to_start(tmp_path, nodes, test_node):
+    from rosgraph_msgs.msg import Clock
+
+    from hydropump_ros.simulator_node import DISCOVERY_WINDOW
     nodes.start('simulator')
-    wait_for_publisher(test_node, '/clock')
+    clocks = []
+    test_node.create_subscription(Clock, '/clock', clocks.append, 10)
+    # The first one is past its own look-out window (two started together both refuse).
+    spin_until(test_node, lambda: clocks and clocks[-1].clock.sec > DISCOVERY_WINDOW + 0.5,
+               60, 'the first simulator to run for a while')
     proc = subprocess.run([executable('simulator'), '--ros-args', '-r', '__ns:=/pump2'],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2
