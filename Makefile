@@ -40,7 +40,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/run_all.py
 
 # The seam tests at full length: ten Ctrl-C / SIGTERM loops per node, twenty lock-step runs
-# with a frozen recorder and twenty with both cores loaded (about six minutes).
+# with a frozen recorder and twenty with both cores loaded (about ten minutes).
 soak: $(STAMP)
 	HYDROPUMP_SIGNAL_LOOPS=10 HYDROPUMP_SOAK=20 $(BIN)/python -m pytest -q \
 		tests/ros/test_seams.py::test_every_node_ends_cleanly_on_ctrl_c_twice_and_sigterm \
