@@ -75,6 +75,7 @@ class RecorderNode(bridge.ExplainedParameters, Node):
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._lock = threading.RLock()
         self.types: dict[str, str] = {}
+        self._pub_counts: dict[str, int] = {}
         topics = [self.resolve_topic_name(n) for n in self.cfg.topics]
         self.rec = Recorder(self.cfg, topics, self, log=lambda lvl, txt: entry.log(
             self.get_logger(), lvl, txt))
@@ -129,14 +130,18 @@ class RecorderNode(bridge.ExplainedParameters, Node):
             for topic in missing:
                 if topic in graph:
                     self._add(topic, graph[topic][0])
+        counts = {topic: self._io.count_publishers(topic) for topic in self.types}
         with self._lock:
+            self._pub_counts = counts
             self.rec.matched()
 
     def matched(self) -> list[str]:
         return [topic for sub, topic, _ in self._subs if sub.get_publisher_count() > 0]
 
     def publishers(self, topic: str) -> int:
-        return self._io.count_publishers(topic)
+        # Asked for every message: a graph query each time would slow the take loop (and
+        # with it a lock-step run), so the discovery timer keeps the counts.
+        return self._pub_counts.get(topic, 0)
 
     def offered_qos(self, topic: str) -> list[dict]:
         """The QoS of the topic's publishers, as rosbag2 records them."""
