@@ -178,6 +178,21 @@ def test_watchdog_holds_then_commands_the_safe_current_then_resumes(ctrl_config,
                                             abs=2e-3)
 
 
+def test_a_first_instant_whose_clock_went_by_is_served_from_the_stamps(ctrl_config, params):
+    """A lock-step simulator's first /clock sent before this node matched it: the stamps of
+    t = 0 make the instant due, so the simulator gets its command."""
+    clock = Clock()
+    sup = Supervisor(ctrl_config, clock=clock, log=lambda *a: None)
+    sup.activate()
+    q = 0.5 * params.Q_max
+    assert sup.measurement('line_pressure', 2e7, stamp_ns=0) is None
+    assert sup.measurement('load_pressure', 1.5e7, stamp_ns=0) is None
+    assert sup.measurement('line_flow', q, source_ns=50) is None   # its time is unknown
+    clock.t += 0.05
+    out = sup.measurement('line_pressure', 2e7, stamp_ns=0)
+    assert out is not None and out.stamp_ns == 0
+
+
 def test_a_restart_waits_for_the_whole_operating_point(ctrl_config, params):
     """Late measurements (a loaded machine) never make a bumpless start from a guess."""
     clock = Clock()

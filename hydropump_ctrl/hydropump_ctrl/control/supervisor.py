@@ -176,6 +176,12 @@ class Supervisor:
             self._meas[topic] = value
         if stamp_ns is not None:
             self._stamp[topic] = stamp_ns
+            if (self._due is None and self.time.present is False and stamp_ns % self.period_ns
+                    == 0 and (self._t_prev is None or stamp_ns > self._t_prev)):
+                # The first /clock went by before this node matched it: the stamps say an
+                # instant has come (a lock-step simulator waits for its command).
+                self._due = stamp_ns
+                self._due_wall = self._clock()
         elif source_ns is not None:
             self._src[topic] = source_ns
         return self._maybe_update()

@@ -132,18 +132,20 @@ def run_experiment(orch: Orchestrator, exp: Experiment, run_dir: Path, bag_dir: 
     logs = run_dir / 'logs' / exp.name
     logs.mkdir(parents=True, exist_ok=True)
     bag = exp.bag(bag_dir)
+    # The first step waits until the recorder is matched; the bag ends at the experiment's
+    # end however loaded the machine is.
     sim = {'lock_step': True, 'lock_step_timeout': 60.0, 'start_paused': True,
-           'command_timeout': 60.0, **exp.sim}
+           'command_timeout': 60.0, 'wait_subscribers': 1, **exp.sim}
     if exp.scenario:
         import yaml
         sc = logs / 'scenario.yaml'
         sc.write_text(yaml.safe_dump({'duration': exp.duration, 'inputs': exp.scenario}))
         sim['scenario_file'] = str(sc)
     commands = {
-        'recorder': ['-p', 'use_sim_time:=true', '-p', f'output:={bag}',
-                     '-p', f'topics:={_ros_value(exp.topics)}'],
+        'recorder': ['-p', f'output:={bag}', '-p', f'topics:={_ros_value(exp.topics)}',
+                     '-p', f'stop_time:={float(exp.duration)!r}'],
         'simulator': ['--params-file', str(sensor_profile)] + _ros_args(sim),
-        'controller': ['-p', 'use_sim_time:=true', '-p', 'autostart:=true',
+        'controller': ['-p', 'autostart:=true',
                        '-p', 'watchdog.hold_timeout:=30.0', '-p', 'watchdog.safe_timeout:=60.0']
         + _ros_args(exp.ctrl),
     }
