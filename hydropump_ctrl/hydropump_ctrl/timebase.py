@@ -15,7 +15,9 @@ The simulator's simulation time is the time of the suite:
 4. Simulation time never goes back while one simulator runs (``~/reset`` keeps time
    running). A ``/clock`` below the latest one means a new simulator: the history is dropped
    and the jump is reported, so that a controller restarts bumplessly and a recorder starts a
-   new bag.
+   new bag. So does a ``/clock`` whose DDS publication sequence number is below the latest
+   one (a new writer): on a loaded machine a new simulator's time may already have passed the
+   old one's by the time it is discovered.
 
 All times are integer nanoseconds. Nothing here imports ROS.
 """
@@ -28,14 +30,18 @@ from dataclasses import dataclass
 
 @dataclass(frozen=True)
 class Jump:
-    """Simulation time went back from ``old`` to ``new`` [ns]: a new simulator started."""
+    """A new simulator started: simulation time went from ``old`` to ``new`` [ns], back or
+    (its ``/clock`` discovered late) on from a new writer."""
 
     old: int
     new: int
 
     def describe(self) -> str:
-        return (f'simulation time went back from {self.old * 1e-9:.6f} s to '
-                f'{self.new * 1e-9:.6f} s (a new simulator)')
+        if self.new < self.old:
+            return (f'simulation time went back from {self.old * 1e-9:.6f} s to '
+                    f'{self.new * 1e-9:.6f} s (a new simulator)')
+        return (f'a new simulator: its /clock (a new writer) is at {self.new * 1e-9:.6f} s, '
+                f'the old one was at {self.old * 1e-9:.6f} s')
 
 
 class TimeBase:
@@ -54,6 +60,7 @@ class TimeBase:
         self._src: list[int] = []   # their source timestamps [ns], increasing
         self._history = history
         self.epoch = 0              # counts the jumps back
+        self._seq: int | None = None  # the latest publication sequence number
 
     @property
     def present(self) -> bool:
@@ -70,9 +77,15 @@ class TimeBase:
         """The source timestamp of the latest ``/clock`` [ns], or ``None``."""
         return self._src[-1] if self._src else None
 
-    def on_clock(self, sim_ns: int, source_ns: int) -> Jump | None:
-        """Take a ``/clock`` sample; return a :class:`Jump` if time went back."""
-        if self._sim and sim_ns < self._sim[-1]:
+    def on_clock(self, sim_ns: int, source_ns: int, sequence: int | None = None
+                 ) -> Jump | None:
+        """Take a ``/clock`` sample (with its DDS publication sequence number, if known);
+        return a :class:`Jump` if time went back or the sample is from a new writer."""
+        new_writer = (sequence is not None and self._seq is not None
+                      and sequence < self._seq)
+        if sequence is not None:
+            self._seq = sequence
+        if self._sim and (sim_ns < self._sim[-1] or new_writer):
             jump = Jump(self._sim[-1], sim_ns)
             self._sim.clear()
             self._src.clear()

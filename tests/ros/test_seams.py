@@ -274,13 +274,16 @@ def test_a_controller_resumes_bumplessly_when_its_simulator_restarts(nodes, test
     new = states[n:]
     t = np.array([m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in new])
     u = np.array([m.position[3] for m in new])
-    restart = int(np.argmax(t < 1.0))  # the first update on the new simulator's time
-    assert t[restart] <= 0.8  # as soon as the new time was there (after discovery)
+    # The controller holds while no simulator runs, so every update after `n` is on the new
+    # simulator's time; the first one comes as soon as the new simulator is discovered (a
+    # few tenths of a second here; up to seconds on a loaded machine).
+    restart = 0
+    assert t[restart] <= 3.0, (t[:5], ctrl.log()[-2000:])
     # It controls on the new time from then on (a paced run on a loaded machine may skip an
     # instant now and then).
     assert np.count_nonzero((t >= t[restart]) & (t < t[restart] + 0.3)) >= 10
     assert np.max(np.abs(u[restart:] - steady)) < 0.02  # no swing
-    assert 'went back' in ctrl.log()
+    assert 'a new simulator' in ctrl.log()
 
 
 def test_the_nodes_declare_their_schemas_defaults(nodes, test_node):

@@ -52,6 +52,20 @@ def test_time_going_back_is_a_new_simulator():
     assert tb.time_of(250) is None            # the old history is gone
 
 
+def test_a_new_writer_is_a_new_simulator_even_if_its_time_is_ahead():
+    """A new simulator discovered late may already be past the old one's time: its /clock
+    writer's publication sequence numbers start again, and that is a jump too."""
+    tb = TimeBase()
+    for k in range(1, 4):
+        assert tb.on_clock(k * MS, 100 * k, sequence=500 + k) is None
+    jump = tb.on_clock(9 * MS, 1000, sequence=1)
+    assert jump is not None and (jump.old, jump.new) == (3 * MS, 9 * MS)
+    assert 'a new simulator' in jump.describe() and 'went back' not in jump.describe()
+    assert tb.epoch == 1 and tb.time_of(350) is None and tb.latest == 9 * MS
+    # The new writer's next samples are no jump.
+    assert tb.on_clock(10 * MS, 1100, sequence=2) is None
+
+
 def test_a_clock_with_an_older_source_time_is_not_mapped():
     tb = TimeBase()
     tb.on_clock(1 * MS, 500)

@@ -186,9 +186,10 @@ class Supervisor:
             self._src[topic] = source_ns
         return self._maybe_update()
 
-    def clock(self, sim_ns: int, source_ns: int) -> Output | None:
-        """A ``/clock`` sample with its source timestamp."""
-        jump = self.time.on_clock(sim_ns, source_ns)
+    def clock(self, sim_ns: int, source_ns: int, sequence: int | None = None
+              ) -> Output | None:
+        """A ``/clock`` sample with its source timestamp (and publication sequence number)."""
+        jump = self.time.on_clock(sim_ns, source_ns, sequence)
         if jump is not None:
             self.counts['time_jumps'] += 1
             self._log('warn', f'{jump.describe()}: restarting the control law from the '

@@ -94,9 +94,10 @@ class Sequencer:
 
     # ---- input ---------------------------------------------------------------------------
 
-    def clock(self, sim_ns: int, source_ns: int) -> Jump | None:
-        """A ``/clock`` sample; a jump back is returned (the caller starts a new bag)."""
-        jump = self.time.on_clock(sim_ns, source_ns)
+    def clock(self, sim_ns: int, source_ns: int, sequence: int | None = None) -> Jump | None:
+        """A ``/clock`` sample; a jump (a new simulator) is returned (the caller starts a new
+        bag)."""
+        jump = self.time.on_clock(sim_ns, source_ns, sequence)
         if jump is None:
             for t in self._topics.values():
                 self._settle(t)

@@ -98,7 +98,8 @@ class ControllerNode(bridge.ExplainedParameters, LifecycleNode):
                 self.sup.measurement(t, m.fluid_pressure, stamp_ns=to_ns(m.header.stamp))),
                 latest))
         self._entities.append(sub(ClockMsg, '/clock', lambda m, info: self._publish(
-            self.sup.clock(to_ns(m.clock), info['source_timestamp'])),
+            self.sup.clock(to_ns(m.clock), info['source_timestamp'],
+                           info.get('publication_sequence_number'))),
             QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)))
         self._entities.append(sub(Float64, '~/reference', self._on_reference, 10))
         steady = Clock(clock_type=ClockType.STEADY_TIME)

@@ -73,6 +73,7 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
                           clock=RosClock(clock_type=ClockType.STEADY_TIME))
         self._make_messages()
         self._started = time.monotonic()
+        self._other_since: float | None = None
         self._alone_timer = self.create_timer(0.1, self._check_alone,
                                               clock=RosClock(clock_type=ClockType.STEADY_TIME))
         self._thread = threading.Thread(target=self._run, name='stepper', daemon=True)
@@ -177,20 +178,28 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
 
     def _check_alone(self) -> None:
         """Refuse to run beside another simulator: /clock would jump back and forth."""
-        if time.monotonic() > self._started + DISCOVERY_WINDOW:
+        now = time.monotonic()
+        if now > self._started + DISCOVERY_WINDOW and self._other_since is None:
             self.destroy_timer(self._alone_timer)
             return
         others = [f'{i.node_namespace.rstrip("/")}/{i.node_name}'
                   for i in self.get_publishers_info_by_topic('/clock')
                   if (i.node_name, i.node_namespace) != (self.get_name(), self.get_namespace())]
-        if others and not self._closing:
-            self.get_logger().error(
-                f'another node publishes /clock in this ROS domain ({", ".join(others)}): one '
-                'simulator per domain (give each pump its own ROS_DOMAIN_ID)')
-            self.exit_code = 2
-            self.destroy_timer(self._alone_timer)
-            self.runner.stop()
-            entry.request_shutdown()
+        if not others or self._closing:
+            return
+        # A writer is discovered before its node's name is: wait a little for the name.
+        self._other_since = self._other_since or now
+        if any('_UNKNOWN_' in o for o in others) and now < self._other_since + 1.0:
+            return
+        named = [o for o in others if '_UNKNOWN_' not in o]
+        self.get_logger().error(
+            f'another node publishes /clock in this ROS domain'
+            f'{" (" + ", ".join(named) + ")" if named else ""}: one simulator per domain '
+            '(give each pump its own ROS_DOMAIN_ID)')
+        self.exit_code = 2
+        self.destroy_timer(self._alone_timer)
+        self.runner.stop()
+        entry.request_shutdown()
 
     def close(self) -> None:
         """Stop stepping before the publishers and the context go."""
