@@ -4,6 +4,7 @@ One module per group of sub-commands:
 
 - :mod:`.plant` - ``analyze``, ``simulate``;
 - :mod:`.fit` - ``fit`` (identification from bags);
+- :mod:`.calibrate` - ``calibrate``, ``validate`` (the plant model fitted to bags);
 - :mod:`.control` - ``design``, ``closed-loop``;
 - :mod:`._common` - what they share: :class:`~._common.UsageError`, the output folder,
   checks of option values.
@@ -21,10 +22,10 @@ import sys
 
 from hydropump_sim.errors import HydropumpError
 
-from . import control, fit, plant
+from . import calibrate, control, fit, plant
 
 # Each adds its sub-commands; a command's ``func(args)`` returns the exit code.
-COMMANDS = (plant.register, fit.register, control.register)
+COMMANDS = (plant.register, fit.register, calibrate.register, control.register)
 
 __all__ = ['COMMANDS', 'build_parser', 'main']
 

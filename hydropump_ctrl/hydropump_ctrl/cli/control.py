@@ -8,6 +8,7 @@ plots EMC beside the PI baseline.
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 import time
@@ -124,8 +125,33 @@ def design_report(cfg, params) -> str:
     return '\n'.join(lines)
 
 
+def fopdt_from_fit(path: str) -> tuple[float, float, float, str]:
+    """``(G0, tau, t_d, which)`` of a ``hydropump fit`` result file (schema
+    ``hydropump-fit/1``): the joint fit where there is one, else the pooled mean."""
+    from ..ident.report import SCHEMA
+    try:
+        data = json.loads(Path(path).read_text(encoding='utf-8'))
+    except FileNotFoundError:
+        raise UsageError(f'--from-fit {path}: no such file') from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise UsageError(f'--from-fit {path}: not a JSON fit result ({exc})') from None
+    got = data.get('schema') if isinstance(data, dict) else None
+    if got != SCHEMA:
+        raise UsageError(f'--from-fit {path}: not a `hydropump fit` result (schema '
+                         f'{SCHEMA!r} expected, got {got!r})')
+    pooled = data.get('pooled') or {}
+    src, which = (pooled['joint'], 'joint fit') if pooled.get('joint') else (pooled, 'pooled mean')
+    vals = [src.get(k) for k in ('G0', 'tau', 'td')]
+    if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in vals):
+        raise UsageError(f'--from-fit {path}: the {which} has no finite G0, tau, td ({vals})')
+    return float(vals[0]), float(vals[1]), float(vals[2]), which
+
+
 def cmd_design(args) -> int:
     from ..control.design import design_config
+    if args.from_fit:
+        args.G0, args.tau, args.t_d, which = fopdt_from_fit(args.from_fit)
+        print(f'eq. 19 from {args.from_fit} ({which})')
     positive(args.G0, '--G0', '% per current range')
     positive(args.tau, '--tau', 's')
     positive(args.t_d, '--t-d', 's', zero=True)
@@ -285,6 +311,9 @@ def register(sub) -> None:
                    '(default 0.1)')
     d.add_argument('--t-d', dest='t_d', type=float, default=0.055,
                    help='eq. 19 delay [s] (default 0.055)')
+    d.add_argument('--from-fit', metavar='RESULT.json',
+                   help='take G0, tau, t_d from a `hydropump fit` result (the joint fit where '
+                        'there is one, else the pooled mean); overrides --G0 --tau --t-d')
     d.add_argument('--set', action='append', metavar='NAME=VALUE',
                    help='override a controller parameter, e.g. emc.tau_control=0.02')
     d.add_argument('--out', help='params file to write (default: controller.yaml beside the '

@@ -148,3 +148,39 @@ def paper_set(*, seed: int = 5, n: int = 9, spread: bool = False, truth: Truth |
     recs = [make_record(tr, seed=seed * 1000 + i, name=f'set{i + 1}', **kw)
             for i, tr in enumerate(truths)]
     return recs, truths
+
+
+def plant_recording(params, current: np.ndarray, *, load_pressure: np.ndarray | None = None,
+                    dt: float = 1e-3, profile=None, name: str = 'plant') -> Recording:
+    """A recording of the fine model as the simulator node publishes it: every measured
+    signal through the sensor ``profile`` (a :class:`hydropump_sim.sensors.SensorProfile`),
+    pressures absolute, the current stamped at the end of the step it was applied over, and
+    the command ``solenoid_current_cmd`` left out (a bench that logs only its sensors).
+
+    ``current`` is the absolute command [A] held over each sample; ``load_pressure`` gauge
+    [Pa] (default: the params file's)."""
+    from hydropump_sim.measure import SIGNAL_OUTPUTS
+    from hydropump_sim.model import OUTPUTS
+    from hydropump_sim.sensors import apply_profile
+    from hydropump_sim.simulate import simulate
+
+    n = current.size
+
+    def held(arr):
+        return lambda t: arr[np.clip(np.floor(np.asarray(t) / dt + 1e-6).astype(int), 0,
+                                     n - 1)]
+    res = simulate(params, (n - 1) * dt, held(current),
+                   load_pressure=None if load_pressure is None else held(load_pressure),
+                   dt_out=dt, dt_max=dt)
+    y = res.y[:n]
+    true = {s: (res.P_u[:n] if o is None else y[:, OUTPUTS.index(o)])
+            for s, o in SIGNAL_OUTPUTS.items()}
+    # The node publishes at t_k the current held over the step that ended there.
+    true['solenoid_current'] = np.concatenate([[true['solenoid_current'][0]],
+                                               true['solenoid_current'][:-1]])
+    t = np.arange(n) * dt
+    meas = apply_profile(profile, t, true) if profile is not None else true
+    p_atm = params.fluid.p_atm
+    for s in ('line_pressure', 'load_pressure', 'actuator_pressure'):
+        meas[s] = meas[s] + p_atm
+    return Recording(t, meas, name=name)
