@@ -46,8 +46,11 @@ def nodes(tmp_path, ros_domain):
     started = []
 
     class Starter:
+        # Extra arguments per node name, for a test that reuses another test's run.
+        extra: dict = {}
+
         def start(self, name, *ros_args):
-            p = NodeProcess(name, list(ros_args), tmp_path)
+            p = NodeProcess(name, list(ros_args) + self.extra.get(name, []), tmp_path)
             started.append(p)
             return p
 
