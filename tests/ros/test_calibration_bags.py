@@ -26,7 +26,8 @@ def test_calibration_recovers_a_perturbed_plant_from_recorded_bags(nodes, test_n
     profile = tmp_path / 'sensors.yaml'
     profile.write_text(yaml.safe_dump(bench))
     scenario = tmp_path / 'load.yaml'
-    scenario.write_text('duration: 10.0\ninputs:\n  load_pressure: {steps: [[0.0, 1.2e+7], [1.6, 0.9e+7]]}\n')
+    scenario.write_text('duration: 10.0\ninputs:\n'
+                        '  load_pressure: {steps: [[0.0, 1.2e+7], [1.6, 0.9e+7]]}\n')
     lo, hi = truth.current_range
     levels = [lo + f * (hi - lo) for f in (0.4, 0.55, 0.45, 0.6, 0.5)]
 
