@@ -105,8 +105,14 @@ class ParamSpec:
 _TYPES = {'float': float, 'int': int, 'bool': bool, 'str': str, 'list': list}
 
 
+@functools.lru_cache(maxsize=None)
+def _type_hints(cls: type) -> dict[str, Any]:
+    # Resolving the annotations compiles them: once per class, not per validation.
+    return typing.get_type_hints(cls)
+
+
 def _field_type(cls: type, f: dataclasses.Field) -> Any:
-    return typing.get_type_hints(cls)[f.name]
+    return _type_hints(cls)[f.name]
 
 
 def _group_fields(cls: type) -> Iterator[tuple[dataclasses.Field, str, type | None]]:

@@ -421,7 +421,7 @@ class Problem:
         for _ in range(3):
             lo, hi = max(0.0, start - 0.01), min(DELAY_MAX, start + 0.01)
             d = float(minimize_scalar(lambda v: fit(v)[0], bounds=(lo, hi), method='bounded',
-                                      options={'xatol': 1e-7}).x)
+                                      options={'xatol': 1e-6}).x)
             inner = (d - lo > 2e-6 or lo == 0.0) and (hi - d > 2e-6 or hi == DELAY_MAX)
             if inner:
                 break
