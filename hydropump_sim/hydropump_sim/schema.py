@@ -105,7 +105,7 @@ class ParamSpec:
 _TYPES = {'float': float, 'int': int, 'bool': bool, 'str': str, 'list': list}
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _type_hints(cls: type) -> dict[str, Any]:
     # Resolving the annotations compiles them: once per class, not per validation.
     return typing.get_type_hints(cls)

@@ -202,3 +202,17 @@ def separating_experiments(params, free: Sequence[str], J: np.ndarray, n_plant: 
         if var > 0 and math.sqrt(var) < DETERMINED_REL_STD:
             good.append(name)
     return good
+
+
+def experiment_table(params, free: Sequence[str], sigma: dict) -> dict[str, dict[str, float]]:
+    """Relative standard error of each free parameter (all of ``free`` fitted together, the
+    delays free) from each standard experiment alone, at ``params`` with noise ``sigma`` per
+    measured signal; ``inf`` where the experiment does not inform it at all."""
+    out = {}
+    for name, inputs in candidate_inputs(params).items():
+        info = experiment_information(params, free, inputs, sigma)
+        ridge = 1e-12 * max(float(np.trace(info)), 1e-300)
+        cov = np.linalg.inv(info + ridge * np.eye(len(free)))
+        rel = np.sqrt(np.maximum(np.diag(cov), 0.0))
+        out[name] = {n: (float(v) if v < 1e3 else math.inf) for n, v in zip(free, rel)}
+    return out
