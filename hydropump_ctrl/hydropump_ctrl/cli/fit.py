@@ -58,6 +58,9 @@ def register(subparsers) -> None:
     p.add_argument('--no-dither', action='store_true',
                    help='robust: do not take dither lines out of the current')
     p.add_argument('--no-joint', action='store_true', help='skip the joint fit of all sets')
+    p.add_argument('--matrix', action='store_true',
+                   help='fit the whole of eq. 16 instead (G21 on both branches, G11, G12), '
+                        'beside the linearisation of the --params file')
     prog = p.add_mutually_exclusive_group()
     prog.add_argument('--progress', dest='progress', action='store_true', default=None,
                       help='show the progress bar (default: on a terminal)')
@@ -77,6 +80,8 @@ def cmd_fit(args) -> int:
 
     if args.dt is not None:
         positive(args.dt, '--dt', 's')
+    if args.matrix:
+        return cmd_matrix(args)
     t0 = time.perf_counter()
     params = load_params(plant_file(args))
     recs = []
@@ -110,4 +115,48 @@ def cmd_fit(args) -> int:
         print(f'wrote {out}/result.json, report.md'
               f'{"" if args.no_plots else " and figures"} ({time.perf_counter() - t0:.1f} s)',
               file=sys.stderr if args.json else sys.stdout)
+    return 0
+
+
+MATRIX_UNITS = {'G21_up': 'm^3/s per A', 'G21_down': 'm^3/s per A', 'G11': 'Pa per A',
+                'G12': 'Pa per Pa'}
+
+
+def cmd_matrix(args) -> int:
+    """``fit --matrix``: the elements of eq. 16 from the bags, beside the linearisation."""
+    import json
+
+    import numpy as np
+
+    from hydropump_sim.params import load_params
+
+    from ..ident import read_recordings
+    from ..ident.matrix import fit_matrix, linear_elements
+    plant = plant_file(args)
+    params = load_params(plant)
+    recs = read_recordings(args.bags, allow_truncated=args.allow_truncated,
+                           progress=args.progress)
+    fits = fit_matrix(recs, params=params)
+    current = float(np.mean([np.mean(r['solenoid_current']) for r in recs
+                             if 'solenoid_current' in r]))
+    lin = linear_elements(params, current)
+    result = {'schema': 'hydropump-matrix/1', 'params': str(plant),
+              'operating_current_A': current, 'units': MATRIX_UNITS,
+              'elements': {k: dict(e.to_dict(), linearisation=lin.get(k))
+                           for k, e in fits.items()}}
+    if args.out:
+        out = run_dir(args.out, 'matrix')
+        (out / 'matrix.json').write_text(json.dumps(result, indent=2))
+    if args.json:
+        print(json.dumps(result, indent=2))
+        return 0
+    print(f'eq. 16 from {len(recs)} bags; linearisation of {plant} at {current:.4g} A\n')
+    print(f'{"element":9s} {"figure":6s} {"fitted":>13s} {"+-":>10s} {"linearised":>13s}')
+    for k, e in fits.items():
+        for name, v in e.values.items():
+            ref = (lin.get(k) or {}).get(name)
+            print(f'{k:9s} {name:6s} {v:13.6g} {e.stderr.get(name, float("nan")):10.2g} '
+                  + (f'{ref:13.6g}' if ref is not None else f'{"":13s}'))
+        for note in e.notes:
+            print(f'          ({note})')
     return 0
