@@ -33,7 +33,7 @@ from hydropump_ctrl.ident.calibrate import (  # noqa: E402
     simulate_experiment,
     WORKERS,
 )
-from hydropump_ctrl.ident.identifiability import candidate_inputs  # noqa: E402
+from hydropump_ctrl.ident.design import candidate_inputs  # noqa: E402
 from hydropump_ctrl.ident.synthetic import plant_recording  # noqa: E402
 from hydropump_sim.errors import HydropumpError  # noqa: E402
 from hydropump_sim.params import load_params  # noqa: E402

@@ -10,7 +10,7 @@ from hydropump_sim.params import load_params
 from hydropump_sim.schema import dump_ros_yaml
 
 from ..conftest import ROOT
-from .test_recorder import _run
+from .test_recorder import run_lock_step
 
 FREE = ('actuator.mu_a', 'line.mu_u')
 
@@ -37,7 +37,7 @@ def test_calibration_recovers_a_perturbed_plant_from_recorded_bags(nodes, test_n
     bag = tmp_path / 'bag'
     nodes.extra = {'simulator': ['-p', f'params_file:={plant}', '-p', f'sensor_profile:={profile}',
                         '-p', f'scenario_file:={scenario}']}
-    _run(nodes, test_node, bag, until=2.5, schedule=staircase)
+    run_lock_step(nodes, test_node, bag, until=2.5, schedule=staircase)
     (rec,) = read_recordings([bag])
     assert 'solenoid_current_cmd' in rec and 'load_pressure' in rec
     cal = calibrate([rec], base, FREE)

@@ -62,7 +62,7 @@ def mcap_records(path):
     return out
 
 
-def _run(nodes, test_node, bag, until=0.4, schedule=None, period=0.005, during=None):
+def run_lock_step(nodes, test_node, bag, until=0.4, schedule=None, period=0.005, during=None):
     """Simulator in lock-step until it pauses at ``until``, the recorder started as
     ``ros2 run`` starts it (no use_sim_time), a stand-in controller; ``during(test_node,
     driver, rec)`` runs while the simulation goes on. Returns after the recorder's ~/stop."""
@@ -113,7 +113,7 @@ def test_bag_is_rosbag2_exact_complete_and_reads_with_an_independent_decoder(
         nodes, test_node, tmp_path):
     from rosbags.rosbag2 import Reader
     bag = tmp_path / 'run'
-    _run(nodes, test_node, bag, until=0.5)
+    run_lock_step(nodes, test_node, bag, until=0.5)
     # rosbag2's layout: <bag>/<bag>_0.mcap and metadata.yaml version 9.
     assert sorted(p.name for p in bag.iterdir()) == ['metadata.yaml', 'run_0.mcap']
     info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
@@ -197,7 +197,7 @@ def _runs(nodes, test_node, tmp_path, during=None, n=1):
     bags = []
     for k in range(n):
         bag = tmp_path / f'r{k}' / 'bag'
-        sim, rec, driver = _run(nodes, test_node, bag, until=0.3,
+        sim, rec, driver = run_lock_step(nodes, test_node, bag, until=0.3,
                                 during=during if k % 2 else None)
         driver.destroy()
         sim.stop()

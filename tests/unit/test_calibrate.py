@@ -19,7 +19,7 @@ from hydropump_ctrl.ident.calibrate import (
     validate,
     write_params,
 )
-from hydropump_ctrl.ident.identifiability import candidate_inputs
+from hydropump_ctrl.ident.design import candidate_inputs, suggest
 from hydropump_ctrl.ident.synthetic import plant_recording
 from hydropump_sim.params import load_params
 from hydropump_sim.sensors import load_profile, SensorProfile
@@ -140,6 +140,11 @@ def test_beta_and_the_line_volume_are_flagged_not_returned(base, tmp_path):
     for n in ('actuator.mu_a', 'line.mu_u'):
         assert est[n].determined and abs(est[n].value / truth.flat()[n] - 1) < 0.02
     assert any('beta / V_l' in f for f in cal.flags)
+    # With these sensors no standard experiment separates them either (it takes the
+    # positions, which see the actuator chamber's compressibility).
+    suggest(cal)
+    assert und['separated_by'] == []
+    assert any('none of the standard experiments suffices' in f for f in cal.flags)
     out = tmp_path / 'cal.yaml'
     write_params(cal, out)
     assert 'free fluid.beta' in out.read_text() and 'not determined' in out.read_text()

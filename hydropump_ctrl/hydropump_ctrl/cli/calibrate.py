@@ -100,6 +100,7 @@ def cmd_calibrate(args) -> int:
 
     from ..ident.calibrate import calibrate, write_params
     from ..ident.calibration_report import fit_table, write_calibration_report
+    from ..ident.design import suggest
     _check_signals(args)
     plant = plant_file(args)
     base = load_params(plant)
@@ -111,6 +112,7 @@ def cmd_calibrate(args) -> int:
                     progress=_progress_printer(args.progress))
     if _progress_printer(args.progress):
         print(file=sys.stderr)
+    suggest(cal)
     write_params(cal, out, [f'start: {plant}'])
     write_calibration_report(cal, report, plots=not args.no_plots)
     if args.json:

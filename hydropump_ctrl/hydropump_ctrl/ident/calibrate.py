@@ -23,7 +23,8 @@ Chosen plant parameters (dotted names of ``config/pump.yaml``) are estimated by 
 - **Identifiability** (:mod:`.identifiability`) is assessed at the optimum; a direction the
   data cannot determine is reported with the combination that is determined, and the fit is
   repeated in the determined subspace, the undetermined combination kept at the start, so
-  that no undetermined value is returned as a confident number.
+  that no undetermined value is returned as a confident number (:func:`.design.suggest`
+  names the experiments that would determine it).
 - **Convergence**: a start far from the optimum is handled by multi-start: if the first
   solution does not reach the noise level of the data, the fit restarts from the start
   scaled by 0.6 and 1.6 along every free parameter together and keeps the best.
@@ -592,6 +593,8 @@ class Calibration:
     predictions: list[dict[str, np.ndarray]] = field(default_factory=list, repr=False)
     predictions_before: list[dict[str, np.ndarray]] = field(default_factory=list, repr=False)
     experiments: list[Experiment] = field(default_factory=list, repr=False)
+    # Fisher information of the data in the plant coordinates (the nuisance projected out).
+    information: np.ndarray | None = field(default=None, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
         def num(v):
@@ -649,7 +652,7 @@ def _nuisance_tables(prob: Problem, nuis) -> tuple[dict, dict]:
 def calibrate(recordings: Sequence, base: Params, free: Sequence[str], *,
               offsets: Sequence[str] = (), fit_delays: bool = True, per_bag: bool = False,
               signals=None, rtol: float = 1e-5, max_nfev: int = 30, multistart: bool = True,
-              suggest: bool = True, workers: int = WORKERS,
+              workers: int = WORKERS,
               progress: Callable[[str], None] | None = None) -> Calibration:
     """Fit the free plant parameters to ``recordings`` (see the module).
 
@@ -659,7 +662,7 @@ def calibrate(recordings: Sequence, base: Params, free: Sequence[str], *,
         Bad free parameters, recordings without the needed signals, no excitation, a
         parameter the recordings cannot inform, or no convergence.
     """
-    from .identifiability import analyse, separating_experiments
+    from .identifiability import analyse, reduce_nuisance
     t_wall = time.perf_counter()
     free = tuple(free)
     exps = [experiment_from(r, base, signals) for r in recordings]
@@ -721,16 +724,9 @@ def calibrate(recordings: Sequence, base: Params, free: Sequence[str], *,
         ident = analyse(np.hstack([Jp, Jn]), r, free, len(free), groups)
         method = ('trust-region least squares (scipy), forward-difference sensitivities, '
                   'delays and offsets by variable projection')
-        separating = []
+        Jr = reduce_nuisance(np.hstack([Jp, Jn]), len(free))
+        information = Jr.T @ Jr
         if ident.undetermined:
-            if suggest:
-                sigma = {s: float(np.median([e.sigma[s] for e in exps if s in e.sigma]))
-                         for s in {s for e in exps for s in e.measured}}
-                for u in ident.undetermined:
-                    u['separated_by'] = separating_experiments(
-                        params_with(base, free, prob.theta(z)), free, np.hstack([Jp, Jn]),
-                        len(free), np.array(u['direction']), sigma)
-                    separating.append(u['separated_by'])
             # Fit again in the determined subspace; the undetermined part stays at the start.
             z = _refit_subspace(prob, z, z0, ident.basis, max_nfev)
             Jp, Jn = prob.sensitivities(z)
@@ -745,12 +741,6 @@ def calibrate(recordings: Sequence, base: Params, free: Sequence[str], *,
         after = prob.predictions(z)
         nuis = prob.evaluate(z)[1]
         flags = list(ident.flags)
-        for u in ident.undetermined:
-            sep = u.get('separated_by')
-            if sep is not None:
-                flags.append(f'to determine {", ".join(u["parameters"])}, add: '
-                             + (', '.join(sep) if sep else 'none of the standard experiments '
-                                'suffices (a measurement of another signal is needed)'))
         zlo, zhi = coords.bounds()
         estimates = []
         dth = coords.dtheta_dz(theta)
@@ -782,7 +772,7 @@ def calibrate(recordings: Sequence, base: Params, free: Sequence[str], *,
             free=free, tied=tied_values(params.flat(), free), method=method,
             n_simulations=prob.n_sims, wall_time=time.perf_counter() - t_wall,
             cost=float(2.0 * sol.cost / max(n_total, 1)), predictions=after,
-            predictions_before=before, experiments=exps)
+            predictions_before=before, experiments=exps, information=information)
     finally:
         prob.close()
 

@@ -10,9 +10,8 @@ the standard error of each parameter and of each direction.
 A direction whose relative standard error exceeds :data:`DETERMINED_REL_STD` is *not
 determined*: it is reported with the parameters it mixes and the combination that is
 determined (for two parameters, a product of powers such as ``beta / V_l``), and the
-calibration is repeated in the determined subspace. :func:`separating_experiments` says which
-of the standard experiments (:data:`CANDIDATES`) would determine it, from their own simulated
-sensitivities at the estimate, not from a table.
+calibration is repeated in the determined subspace. :mod:`.design` says which of the standard
+experiments would determine it.
 
 Nothing here imports ROS.
 """
@@ -25,15 +24,11 @@ import math
 
 import numpy as np
 
-from hydropump_sim.errors import HydropumpError
-
 from .diagnostics import covariance
 
 # A combination of parameters is determined when its relative standard error is below this
 # (so that a determined parameter is within 2 % at three standard errors).
 DETERMINED_REL_STD = 0.02 / 3.0
-# A planned experiment's delays are taken as free, at a typical value [s].
-DELAY_PLAN = 0.05
 
 
 @dataclass
@@ -47,7 +42,7 @@ class Identifiability:
     flags: list[str] = field(default_factory=list)
 
 
-def _reduce(J: np.ndarray, n_plant: int) -> np.ndarray:
+def reduce_nuisance(J: np.ndarray, n_plant: int) -> np.ndarray:
     """The plant columns with the nuisance columns' span projected out."""
     Jp, Jn = J[:, :n_plant], J[:, n_plant:]
     if Jn.shape[1] == 0:
@@ -82,7 +77,7 @@ def analyse(J: np.ndarray, r: np.ndarray, names: Sequence[str], n_plant: int,
     """Identifiability at a solution (see the module). With ``basis`` (after a refit in the
     determined subspace) the undetermined directions are kept as found before."""
     n = n_plant
-    Jr = _reduce(J, n)
+    Jr = reduce_nuisance(J, n)
     sv = np.linalg.svd(Jr, compute_uv=False) if n else np.zeros(0)
     _, cov_h, _ = covariance(J, r, groups)
     C = cov_h[:n, :n]
@@ -128,91 +123,3 @@ def analyse(J: np.ndarray, r: np.ndarray, names: Sequence[str], n_plant: int,
         flags.append(f'not determined by these recordings: {", ".join(u["parameters"])}'
                      + (f'; only {comb} is' if '/' in comb or '*' in comb else ''))
     return Identifiability(sv, corr, stderr, undetermined, names_out, basis, flags)
-
-
-# --------------------------------------------------------------------------------------------
-# Experiments that would separate an undetermined direction
-# --------------------------------------------------------------------------------------------
-
-def _staircase(levels, dwell, dt):
-    return np.concatenate([np.full(int(round(dwell / dt)), v) for v in levels])
-
-
-def candidate_inputs(params, dt: float = 1e-3, dwell: float = 1.0) -> dict[str, dict]:
-    """The standard experiments: current staircases up and down in the regulating range at
-    the params file's load pressure, the same at a load pressure 40 bar lower, and a
-    load-pressure step at a held current (inputs: absolute current A, gauge load Pa)."""
-    lo, hi = params.current_range
-    mid = 0.5 * (lo + hi)
-    span = hi - lo
-    up = [mid - 0.2 * span, mid - 0.1 * span, mid, mid + 0.1 * span, mid + 0.2 * span]
-    P_u = params.line.P_u
-    n = len(up) * int(round(dwell / dt))
-    low = max(P_u - 4.0e6, 0.3 * P_u)
-    step_p = np.concatenate([np.full(int(round(1.0 / dt)), P_u),
-                             np.full(int(round(1.0 / dt)), low),
-                             np.full(int(round(1.0 / dt)), P_u)])
-    return {
-        'staircase up': {'current': _staircase(up, dwell, dt), 'load_pressure': None},
-        'staircase down': {'current': _staircase(up[::-1], dwell, dt), 'load_pressure': None},
-        'staircases at a lower load pressure': {
-            'current': _staircase(up + up[::-1][1:], dwell, dt),
-            'load_pressure': np.full(n + (len(up) - 1) * int(round(dwell / dt)), low)},
-        'load-pressure steps': {'current': np.full(step_p.size, mid), 'load_pressure': step_p},
-    }
-
-
-CANDIDATES = ('staircase up', 'staircase down', 'staircases at a lower load pressure',
-              'load-pressure steps')
-
-
-def experiment_information(params, free: Sequence[str], inputs: dict, sigma: dict,
-                           dt: float = 1e-3) -> np.ndarray:
-    """Fisher information (``J'J`` of the noise-weighted residuals, in log coordinates, the
-    measurement delays projected out) of one candidate experiment at ``params``."""
-    from .calibrate import Coordinates, Experiment, Problem
-    cur = inputs['current']
-    load = inputs['load_pressure']
-    meas = {s: np.zeros(cur.size) for s in sigma}
-    exp = Experiment('candidate', dt, cur, load, meas, dict(sigma))
-    prob = Problem(params, Coordinates.of(params, free), [exp], workers=1)
-    flat = params.flat()
-    z = prob.coords.to_z(np.array([flat[n] for n in free]))
-    # The delays are unknown in a planned experiment: each signal's is free (projected out).
-    nuis = {k: (DELAY_PLAN, 0.0) for k in prob.keys}
-    Jp, Jn = prob.sensitivities(z, nuis)
-    Jr = _reduce(np.hstack([Jp, Jn]), len(free))
-    return Jr.T @ Jr
-
-
-def separating_experiments(params, free: Sequence[str], J: np.ndarray, n_plant: int,
-                           direction: np.ndarray, sigma: dict) -> list[str]:
-    """Which candidate experiments, added to the data, determine ``direction`` (relative
-    standard error below :data:`DETERMINED_REL_STD`)."""
-    Jr = _reduce(J, n_plant)
-    base = Jr.T @ Jr
-    good = []
-    w = np.asarray(direction, float)
-    for name, inputs in candidate_inputs(params).items():
-        try:
-            info = base + experiment_information(params, free, inputs, sigma)
-        except HydropumpError:   # a candidate the model cannot run is no candidate
-            continue
-        var = float(w @ np.linalg.pinv(info) @ w)
-        if var > 0 and math.sqrt(var) < DETERMINED_REL_STD:
-            good.append(name)
-    return good
-
-
-def experiment_table(params, free: Sequence[str], sigma: dict) -> dict[str, dict[str, float]]:
-    """Relative standard error of each free parameter (all of ``free`` fitted together, the
-    delays free) from each standard experiment alone, at ``params`` with noise ``sigma`` per
-    measured signal; ``inf`` where the experiment does not inform it at all."""
-    out = {}
-    for name, inputs in candidate_inputs(params).items():
-        info = experiment_information(params, free, inputs, sigma)
-        ridge = 1e-12 * max(float(np.trace(info)), 1e-300)
-        cov = np.linalg.inv(info + ridge * np.eye(len(free)))
-        rel = np.sqrt(np.maximum(np.diag(cov), 0.0))
-        out[name] = {n: (float(v) if v < 1e3 else math.inf) for n, v in zip(free, rel)}
-    return out
