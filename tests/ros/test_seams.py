@@ -245,11 +245,13 @@ def test_a_second_simulator_in_the_domain_refuses_to_start(tmp_path, nodes, test
     # The first one is past its own look-out window (two started together both refuse).
     spin_until(test_node, lambda: clocks and clocks[-1].clock.sec > DISCOVERY_WINDOW + 0.5,
                60, 'the first simulator to run for a while')
-    proc = subprocess.run([executable('simulator'), '--ros-args', '-r', '__ns:=/pump2'],
-                          capture_output=True, text=True, timeout=60)
-    assert proc.returncode == 2
-    assert 'another node publishes /clock in this ROS domain (/simulator)' in proc.stdout + \
-        proc.stderr
+    # In another namespace, and in the same one (where both have the same name).
+    for ns in ('/pump2', '/'):
+        proc = subprocess.run([executable('simulator'), '--ros-args', '-r', f'__ns:={ns}'],
+                              capture_output=True, text=True, timeout=60)
+        assert proc.returncode == 2
+        assert 'another node publishes /clock in this ROS domain (/simulator)' in \
+            proc.stdout + proc.stderr
 
 
 def test_a_controller_resumes_bumplessly_when_its_simulator_restarts(nodes, test_node):

@@ -316,8 +316,14 @@ _WORK: dict[str, Any] = {}
 
 def _simulate_column(job):
     theta, e = job
-    params = params_with(_WORK['base'], _WORK['names'], theta)
-    return simulate_experiment(params, _WORK['exps'][e], _WORK['rtol'])
+    # One validated parameter set per vector, not per experiment (validation takes ms).
+    cache = _WORK.setdefault('params', {})
+    key = np.asarray(theta).tobytes()
+    if key not in cache:
+        if len(cache) > 16:
+            cache.clear()
+        cache[key] = params_with(_WORK['base'], _WORK['names'], theta)
+    return simulate_experiment(cache[key], _WORK['exps'][e], _WORK['rtol'])
 
 
 class Problem:
@@ -367,10 +373,14 @@ class Problem:
         if jobs:
             self.n_sims += len(jobs)
             if self.workers > 1 and len(jobs) > 1:
-                results = list(self._executor().map(_simulate_column, jobs))
+                # A vector's experiments go to one worker together (its parameter cache).
+                results = list(self._executor().map(_simulate_column, jobs,
+                                                    chunksize=len(self.exps)))
             else:
-                _WORK.update(base=self.base, names=self.coords.names, exps=self.exps,
-                             rtol=self.rtol)
+                if (_WORK.get('exps') is not self.exps or _WORK.get('base') is not self.base
+                        or _WORK.get('names') != self.coords.names):
+                    _WORK.update(base=self.base, names=self.coords.names, exps=self.exps,
+                                 rtol=self.rtol, params={})
                 results = [_simulate_column(j) for j in jobs]
             m = len(self.exps)
             for i, (k, _) in enumerate(todo):
@@ -384,7 +394,7 @@ class Problem:
     def _executor(self):
         if self._pool is None:
             _WORK.update(base=self.base, names=self.coords.names, exps=self.exps,
-                         rtol=self.rtol)
+                         rtol=self.rtol, params={})
             self._pool = ProcessPoolExecutor(self.workers,
                                              mp_context=multiprocessing.get_context('fork'))
         return self._pool

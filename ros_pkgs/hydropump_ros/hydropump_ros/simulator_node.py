@@ -183,8 +183,12 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
             self.destroy_timer(self._alone_timer)
             return
         others = [f'{i.node_namespace.rstrip("/")}/{i.node_name}'
-                  for i in self.get_publishers_info_by_topic('/clock')
-                  if (i.node_name, i.node_namespace) != (self.get_name(), self.get_namespace())]
+                  for i in self.get_publishers_info_by_topic('/clock')]
+        # Leave out this node's own writer, once: a second simulator of the same name in the
+        # same namespace is another one too.
+        own = f'{self.get_namespace().rstrip("/")}/{self.get_name()}'
+        if own in others:
+            others.remove(own)
         if not others or self._closing:
             return
         # A writer is discovered before its node's name is: wait a little for the name.
