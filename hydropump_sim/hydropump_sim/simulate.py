@@ -171,8 +171,8 @@ def _grid(duration: float, dt_out: float, dt_max: float) -> tuple[int, int, floa
 def simulate(params: Params, duration: float, current: Signal = None, *, model: str = 'fine',
              load_pressure: Signal = None, aperture: Signal = None, shaft_speed: Signal = None,
              x0=None, dt_out: float = 1.0e-3, dt_max: float = 1.0e-3, method: str = 'rodas',
-             config: IntegratorConfig = IntegratorConfig(), rtol: float | None = None
-             ) -> SimResult:
+             config: IntegratorConfig = IntegratorConfig(), rtol: float | None = None,
+             t0: float = 0.0) -> SimResult:
     """Simulate the fine or the simplified model.
 
     Parameters
@@ -196,6 +196,9 @@ def simulate(params: Params, duration: float, current: Signal = None, *, model: 
         The compiled Rodas4 stepper, or scipy's Radau (the reference; use a tight ``rtol``).
     rtol : float, optional
         Relative tolerance (overrides ``config.rtol``).
+    t0 : float
+        Plant time [s] of the first sample: the phase of the dither (a recording that starts
+        at simulation time ``t0``); inputs and outputs stay on ``0 .. duration``.
 
     Returns
     -------
@@ -218,7 +221,9 @@ def simulate(params: Params, duration: float, current: Signal = None, *, model: 
     stats = np.zeros(2, dtype=np.int64)
     tol = config.rtol if rtol is None else rtol
     if method == 'rodas':
-        _run_rodas(x0, dt, U, p, tol, config, decim, Y, X, stats)
+        _run_rodas(x0, dt, U, p, tol, config, decim, Y, X, stats, t0)
+    elif t0 and params.input.dither_amp:
+        raise InputError('t0 (the dither phase) needs the rodas method')
     elif method == 'radau':
         _run_radau(x0, dt, U, p, tol, decim, Y, X, stats)
     else:
@@ -233,7 +238,7 @@ def simulate(params: Params, duration: float, current: Signal = None, *, model: 
 _CHUNK = 20000
 
 
-def _run_rodas(x0, dt, U, p, rtol, config, decim, Y, X, stats):
+def _run_rodas(x0, dt, U, p, rtol, config, decim, Y, X, stats, t0=0.0):
     """The compiled Rodas4 loop under the step and wall-time budgets of ``config``."""
     n_out = Y.shape[0] - 1
     rows = max(1, _CHUNK // decim)
@@ -243,7 +248,7 @@ def _run_rodas(x0, dt, U, p, rtol, config, decim, Y, X, stats):
     for r0 in range(0, n_out, rows):
         r1 = min(r0 + rows, n_out)
         k0, k1 = r0 * decim, r1 * decim
-        status, done = c.run(x, k0 * dt, dt, U[k0:k1], p, rtol, config.h_min,
+        status, done = c.run(x, t0 + k0 * dt, dt, U[k0:k1], p, rtol, config.h_min,
                              config.max_steps, decim, Y[r0:r1 + 1], X[r0:r1 + 1], stats, budget)
         t_fail = (k0 + done) * dt
         if status == c.FAIL_BUDGET:

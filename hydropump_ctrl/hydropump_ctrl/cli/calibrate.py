@@ -41,6 +41,10 @@ def _read(args):
 def _common(p) -> None:
     p.add_argument('bags', nargs='+', metavar='BAG',
                    help='bag directory, .mcap or .db3 file, or a saved .npz recording')
+    p.add_argument('--profile', metavar='FILE',
+                   help='sensor profile the bags were recorded with (e.g. config/bench.yaml): '
+                        'its plant settings (the dither) are layered over --params, as the '
+                        'simulator node layers them')
     p.add_argument('--signals', nargs='+', metavar='SIGNAL',
                    help='compare only these signals (default: every measured one the bags '
                         'have)')
@@ -95,15 +99,26 @@ def _check_signals(args) -> None:
                          f'{", ".join(OUTPUT_SIGNALS)})')
 
 
-def cmd_calibrate(args) -> int:
+def _plant(args):
+    """The params file, with the plant settings of ``--profile`` layered over it."""
     from hydropump_sim.params import load_params
+    from hydropump_sim.sensors import load_profile
+    plant = plant_file(args)
+    params = load_params(plant)
+    if args.profile:
+        over = load_profile(args.profile).plant_overrides or {}
+        if over:
+            params = params.replace(over)
+    return plant, params
+
+
+def cmd_calibrate(args) -> int:
 
     from ..ident.calibrate import calibrate, write_params
     from ..ident.calibration_report import fit_table, write_calibration_report
     from ..ident.design import suggest
     _check_signals(args)
-    plant = plant_file(args)
-    base = load_params(plant)
+    plant, base = _plant(args)
     report = run_dir(args.report, 'calibrate')
     out = output_file(args.out or report / 'calibrated.yaml', PARAMS_SUFFIXES, 'params file')
     recs = _read(args)
@@ -113,7 +128,8 @@ def cmd_calibrate(args) -> int:
     if _progress_printer(args.progress):
         print(file=sys.stderr)
     suggest(cal)
-    write_params(cal, out, [f'start: {plant}'])
+    write_params(cal, out, [f'start: {plant}'] + ([f'layered with the plant settings of '
+                                                   f'{args.profile}'] if args.profile else []))
     write_calibration_report(cal, report, plots=not args.no_plots)
     if args.json:
         print(json.dumps(cal.to_dict(), indent=2))
@@ -137,13 +153,10 @@ def cmd_calibrate(args) -> int:
 
 
 def cmd_validate(args) -> int:
-    from hydropump_sim.params import load_params
-
     from ..ident.calibrate import validate
     from ..ident.calibration_report import fit_table, write_validation_report
     _check_signals(args)
-    plant = plant_file(args)
-    params = load_params(plant)
+    plant, params = _plant(args)
     out = run_dir(args.out, 'validate')
     recs = _read(args)
     fit, delays, exps, preds = validate(recs, params, signals=args.signals,

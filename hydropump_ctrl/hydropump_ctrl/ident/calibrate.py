@@ -52,6 +52,7 @@ from hydropump_sim.model import OUTPUTS
 from hydropump_sim.params import Params, params_from_dict
 from hydropump_sim.schema import ParamError, spec_map
 from hydropump_sim.simulate import simulate
+from hydropump_sim.trim import equilibrium
 
 from .errors import FitError
 from .signals import detect_dither
@@ -191,6 +192,23 @@ class Experiment:
     sigma: dict[str, float]              # noise level per signal
     current_source: str = ''
     notes: list[str] = field(default_factory=list)
+    t0: float = 0.0                      # s, plant time of the first sample (dither phase)
+    # The run's initial state, when it did not start settled at its first inputs: the
+    # measured plate position (or pump flow) at the start, whose equilibrium it was.
+    start_signal: tuple[str, float] | None = None
+
+    def initial_current(self, params: Params) -> float:
+        """The current whose equilibrium the run starts from: the first input, or the one the
+        measured initial plate position says (``phi_s i_s = K_a x_a`` at ``x_c = 0``, eq. 1;
+        from a pump flow through eq. 8)."""
+        if self.start_signal is None:
+            return float(self.current[0])
+        name, v = self.start_signal
+        sp = params.spool
+        x_a = v if name == 'actuator_position' else params.stroke_scale * (
+            v / params.Q_max - 0.5)
+        lo, hi = params.I_limits
+        return float(min(max(params.I_nominal + sp.K_a * x_a / sp.phi_s, lo), hi))
 
     @property
     def n(self) -> int:
@@ -262,7 +280,25 @@ def experiment_from(rec, base: Params, signals: Sequence[str] | None = None) -> 
         # A noise-free signal (a simulator's exact joint states) still gets a finite weight:
         # 0.1 % of its span, about what the integrator's tolerance leaves of model error.
         sigma[s] = max(sig, NOISE_FLOOR * max(span, abs(float(np.nanmean(y))) * 1e-2, 1e-300))
-    return Experiment(name, dt, cur, load, measured, sigma, source, notes)
+    # A bag in simulation time starts at the simulator's time t0: the model's dither then has
+    # the simulator's phase (a bench's dither phase is not known: see docs/identification.md).
+    exp = Experiment(name, dt, cur, load, measured, sigma, source, notes,
+                     t0=rec.t0_ns * 1e-9 if base.input.dither_amp > 0 else 0.0)
+    # Did the run start settled? The plate position (exact state) or the pump flow of the first
+    # samples (before the plate can have moved) gives the equilibrium it started from.
+    for s, k in (('actuator_position', 3), ('pump_flow', 10)):
+        if s in measured and np.isfinite(measured[s][:k]).all():
+            exp.start_signal = (s, float(np.mean(measured[s][:k])))
+            i0 = exp.initial_current(base)
+            span = base.current_range[1] - base.current_range[0]
+            if abs(i0 - cur[0]) > 0.02 * span:
+                exp.notes.append(f'{name}: the run did not start settled: it starts from the '
+                                 f'equilibrium at {i0:.4g} A (the {s} at the start), its first '
+                                 f'input is {cur[0]:.4g} A')
+            else:
+                exp.start_signal = None
+            break
+    return exp
 
 
 def excitation_check(exps: Sequence[Experiment]) -> list[str]:
@@ -296,10 +332,15 @@ def simulate_experiment(params: Params, exp: Experiment, rtol: float | None = No
                         ) -> dict[str, np.ndarray]:
     """The fine model's true signals on the experiment's grid (SI, gauge)."""
     n = exp.n
+    x0 = None
+    if exp.start_signal is not None:
+        x0 = equilibrium(params, exp.initial_current(params),
+                         load_pressure=None if exp.load_pressure is None
+                         else float(exp.load_pressure[0])).x
     res = simulate(params, (n - 1) * exp.dt, _held(exp.current, exp.dt),
                    load_pressure=None if exp.load_pressure is None
                    else _held(exp.load_pressure, exp.dt),
-                   dt_out=exp.dt, dt_max=exp.dt, rtol=rtol)
+                   dt_out=exp.dt, dt_max=exp.dt, rtol=rtol, t0=exp.t0, x0=x0)
     return {s: res.y[:n, _OUT_INDEX[s]] for s in exp.measured}
 
 
@@ -426,19 +467,25 @@ class Problem:
         if not self.fit_delays:
             return 0.0, fit(0.0)[1]
         from scipy.optimize import minimize_scalar
+        step = max(dt, 0.002)
         if search:
-            grid = np.arange(0.0, DELAY_MAX + 1e-12, max(dt, 0.002))
+            grid = np.arange(0.0, DELAY_MAX + 1e-12, step)
             start = float(grid[int(np.argmin([fit(g)[0] for g in grid]))])
-        for _ in range(3):
-            lo, hi = max(0.0, start - 0.01), min(DELAY_MAX, start + 0.01)
-            d = float(minimize_scalar(lambda v: fit(v)[0], bounds=(lo, hi), method='bounded',
-                                      options={'xatol': 1e-6}).x)
-            inner = (d - lo > 2e-6 or lo == 0.0) and (hi - d > 2e-6 or hi == DELAY_MAX)
-            if inner:
-                break
-            start = d
-        if d < 1e-6 and fit(0.0)[0] <= fit(d)[0]:
-            d = 0.0
+        # Refine within a grid step or so (a periodic signal, the dither, has a minimum every
+        # period), moving the window while the minimum sits on its edge; never worse than the
+        # start.
+        d = start
+        for _ in range(4):
+            lo, hi = max(0.0, start - 1.5 * step), min(DELAY_MAX, start + 1.5 * step)
+            cand = float(minimize_scalar(lambda v: fit(v)[0], bounds=(lo, hi), method='bounded',
+                                         options={'xatol': 1e-6}).x)
+            best = min((cand, start, lo, hi), key=lambda v: fit(v)[0])
+            d = best
+            on_edge = (best == lo and lo > 0.0) or (best == hi and hi < DELAY_MAX)
+            if on_edge and best != start:
+                start = best
+                continue
+            break
         return d, fit(d)[1]
 
     def evaluate(self, z: np.ndarray, search: bool = False):
