@@ -255,3 +255,22 @@ def test_cli_calibrate_validate_design_cycle(usual, tmp_path):
     proc = _cli('design', '--params', str(out), '--out', str(tmp_path / 'controller.yaml'))
     assert proc.returncode == 0, proc.stderr
     assert (tmp_path / 'controller.yaml').is_file()
+
+
+def test_a_run_that_did_not_start_settled_starts_where_its_plate_was(base):
+    """A bag that begins while the plant still moves (the simulator settled at 0.5 A, the
+    excitation starts lower): the initial plate position gives the equilibrium it came
+    from, and the fit is as good as on a settled run."""
+    from hydropump_ctrl.ident import Recording
+    truth = params_with(base, ('line.mu_u',), [base.line.mu_u * 0.9])
+    lo, hi = truth.current_range
+    cur = np.concatenate([np.full(300, 0.5 * (lo + hi))] +
+                         [np.full(600, lo + f * (hi - lo)) for f in (0.3, 0.45, 0.35)])
+    full = plant_recording(truth, cur, name='late')
+    rec = Recording(full.t[300:] - full.t[300], {k: v[300:] for k, v in full.signals.items()},
+                    name='late')
+    cal = calibrate([rec], base, ['line.mu_u'])
+    assert any('did not start settled' in n for n in cal.notes)
+    (p,) = cal.estimates
+    assert abs(p.value / truth.line.mu_u - 1) < 0.002
+    assert cal.fit['late']['actuator_position'] > 99.0
