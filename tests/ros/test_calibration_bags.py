@@ -37,7 +37,8 @@ def test_calibration_recovers_a_perturbed_plant_from_recorded_bags(nodes, test_n
     bag = tmp_path / 'bag'
     nodes.extra = {'simulator': ['-p', f'params_file:={plant}', '-p', f'sensor_profile:={profile}',
                         '-p', f'scenario_file:={scenario}']}
-    run_lock_step(nodes, test_node, bag, until=2.5, schedule=staircase)
+    _, _, driver = run_lock_step(nodes, test_node, bag, until=2.5, schedule=staircase)
+    driver.destroy()   # the stand-in controller must not answer later tests' simulators
     (rec,) = read_recordings([bag])
     assert 'solenoid_current_cmd' in rec and 'load_pressure' in rec
     cal = calibrate([rec], base, FREE)
