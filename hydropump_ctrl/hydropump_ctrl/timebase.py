@@ -15,9 +15,10 @@ The simulator's simulation time is the time of the suite:
 4. Simulation time never goes back while one simulator runs (``~/reset`` keeps time
    running). A ``/clock`` below the latest one means a new simulator: the history is dropped
    and the jump is reported, so that a controller restarts bumplessly and a recorder starts a
-   new bag. So does a ``/clock`` whose DDS publication sequence number is below the latest
-   one (a new writer): on a loaded machine a new simulator's time may already have passed the
-   old one's by the time it is discovered.
+   new bag. So does a ``/clock`` from a new writer (its DDS publication sequence number below
+   the latest one, or another writer identity, the endpoint GIDs the graph shows): on a loaded
+   machine a new simulator's time may already have passed the old one's by the time it is
+   discovered.
 
 All times are integer nanoseconds. Nothing here imports ROS.
 """
@@ -61,6 +62,7 @@ class TimeBase:
         self._history = history
         self.epoch = 0              # counts the jumps back
         self._seq: int | None = None  # the latest publication sequence number
+        self._writer = None           # the latest writer identity
 
     @property
     def present(self) -> bool:
@@ -77,14 +79,18 @@ class TimeBase:
         """The source timestamp of the latest ``/clock`` [ns], or ``None``."""
         return self._src[-1] if self._src else None
 
-    def on_clock(self, sim_ns: int, source_ns: int, sequence: int | None = None
-                 ) -> Jump | None:
-        """Take a ``/clock`` sample (with its DDS publication sequence number, if known);
-        return a :class:`Jump` if time went back or the sample is from a new writer."""
-        new_writer = (sequence is not None and self._seq is not None
-                      and sequence < self._seq)
+    def on_clock(self, sim_ns: int, source_ns: int, sequence: int | None = None,
+                 writer=None) -> Jump | None:
+        """Take a ``/clock`` sample (with its DDS publication sequence number and its writer's
+        identity, where known); return a :class:`Jump` if time went back or the sample is
+        from a new writer."""
+        new_writer = ((sequence is not None and self._seq is not None and sequence < self._seq)
+                      or (writer is not None and self._writer is not None
+                          and writer != self._writer))
         if sequence is not None:
             self._seq = sequence
+        if writer is not None:
+            self._writer = writer
         if self._sim and (sim_ns < self._sim[-1] or new_writer):
             jump = Jump(self._sim[-1], sim_ns)
             self._sim.clear()

@@ -66,6 +66,18 @@ def test_a_new_writer_is_a_new_simulator_even_if_its_time_is_ahead():
     assert tb.on_clock(10 * MS, 1100, sequence=2) is None
 
 
+def test_another_writer_identity_is_a_new_simulator():
+    """A new simulator discovered after its time and its sequence numbers have both passed
+    the old one's: the writer identity (the endpoint GIDs the graph shows) tells them apart."""
+    tb = TimeBase()
+    for k in range(1, 4):
+        assert tb.on_clock(k * MS, 100 * k, sequence=k, writer=('a',)) is None
+    assert tb.on_clock(4 * MS, 400, sequence=4, writer=None) is None   # identity unknown
+    jump = tb.on_clock(9 * MS, 1000, sequence=9000, writer=('b',))
+    assert jump is not None and (jump.old, jump.new) == (4 * MS, 9 * MS)
+    assert tb.on_clock(10 * MS, 1100, sequence=9001, writer=('b',)) is None
+
+
 def test_a_clock_with_an_older_source_time_is_not_mapped():
     tb = TimeBase()
     tb.on_clock(1 * MS, 500)
@@ -241,3 +253,28 @@ def test_live_parameters_are_checked(ctrl_config):
     assert sup.config.emc.tau_control == 0.02
     with pytest.raises(ParamError, match='must not be shorter'):
         build(ControllerNodeConfig, {'watchdog': {'hold_timeout': 1.0, 'safe_timeout': 0.5}})
+
+
+def test_wall_time_only_when_no_clock_exists_for_clock_wait(ctrl_config):
+    """A controller on a real pump (no /clock anywhere) updates on its steady timer, stamped
+    with wall time, but only after CLOCK_WAIT of measurements with no /clock publisher: a
+    simulator's /clock discovered late must never meet a wall-time command."""
+    clock = Clock()
+    sup = Supervisor(ctrl_config, clock=clock, log=lambda *a: None)
+    sup.activate()
+
+    def measurements():
+        sup.measurement('line_flow', 5.0e-4, source_ns=int(clock.t * 1e9))
+        sup.measurement('line_pressure', 1.6e7, stamp_ns=None)
+        sup.measurement('load_pressure', 1.2e7, stamp_ns=None)
+
+    measurements()
+    for t in (0.5, Supervisor.CLOCK_WAIT - 0.1):
+        clock.t = t
+        measurements()
+        assert sup.wall_tick(10 ** 18) is None
+    clock.t = Supervisor.CLOCK_WAIT + 0.1
+    measurements()
+    assert sup.wall_tick(10 ** 18, clock_publishers=1) is None   # a simulator is there
+    out = sup.wall_tick(10 ** 18)
+    assert out is not None and out.stamp_ns == 10 ** 18

@@ -99,8 +99,10 @@ class Supervisor:
     #: Steady time [s] after a control instant after which an update uses the latest values,
     #: for a free-running simulator whose samples may never carry ``t_K`` exactly.
     STALE_WAIT = 0.02
-    #: Steady time [s] of measurements without a ``/clock`` after which time is wall time.
-    CLOCK_WAIT = 1.0
+    #: Steady time [s] of measurements without a ``/clock`` after which time is wall time:
+    #: longer than a discovery that missed its first announcements (Fast DDS then waits for
+    #: the next, 3 s later), so that a simulator's graph never gets a wall-time command.
+    CLOCK_WAIT = 4.0
     THROTTLE = 2.0
 
     def __init__(self, config: ControllerConfig, watchdog: Watchdog = Watchdog(), *,
@@ -186,10 +188,11 @@ class Supervisor:
             self._src[topic] = source_ns
         return self._maybe_update()
 
-    def clock(self, sim_ns: int, source_ns: int, sequence: int | None = None
+    def clock(self, sim_ns: int, source_ns: int, sequence: int | None = None, writer=None
               ) -> Output | None:
-        """A ``/clock`` sample with its source timestamp (and publication sequence number)."""
-        jump = self.time.on_clock(sim_ns, source_ns, sequence)
+        """A ``/clock`` sample with its source timestamp (and publication sequence number
+        and writer identity, see :meth:`TimeBase.on_clock`)."""
+        jump = self.time.on_clock(sim_ns, source_ns, sequence, writer)
         if jump is not None:
             self.counts['time_jumps'] += 1
             self._log('warn', f'{jump.describe()}: restarting the control law from the '

@@ -13,7 +13,7 @@ import numpy as np
 from hydropump_sim.params import Params
 
 
-def _plt():
+def pyplot():
     """``matplotlib.pyplot`` on the Agg backend (imported on first use: it is slow)."""
     import matplotlib
     matplotlib.use('Agg')
@@ -27,7 +27,7 @@ def plot_bode_identified(params: Params, ident, path: Path) -> None:
 
     from hydropump_sim import equilibrium, linearize
     from hydropump_sim.linear import bode_data
-    plt = _plt()
+    plt = pyplot()
     w = np.logspace(-0.5, 3.5, 400)
     norm = 100.0 * (params.current_range[1] - params.current_range[0]) / params.Q_max
     fig, (am, ap) = plt.subplots(2, 1, figsize=(8, 6.2), sharex=True)
@@ -68,7 +68,7 @@ def plot_hysteresis(params: Params, path: Path, levels: int = 13, hold: float = 
         displacement_of_current,
         flow_percent,
     )
-    plt = _plt()
+    plt = pyplot()
     d = np.linspace(0.2, 0.8, levels)
     seq = np.concatenate([d, d[-2::-1]])
     currents = current_for_displacement(params, seq)
@@ -103,7 +103,7 @@ def plot_hysteresis(params: Params, path: Path, levels: int = 13, hold: float = 
 
 def plot_closed_loop(results: dict, path: Path) -> None:
     """EMC against PI on the three scenarios."""
-    plt = _plt()
+    plt = pyplot()
     scen = ['flow_step', 'aperture_step', 'margin_step']
     titles = {'flow_step': 'flow step 30 -> 70 %', 'aperture_step':
               'aperture 0.5 -> 0.4 (margin 25 bar)', 'margin_step': 'margin 20 -> 25 bar'}

@@ -62,8 +62,9 @@ class RecorderConfig:
     idle_timeout: float = spec('s', 'steady-clock silence after which a topic no longer holds '
                                'the others back', 0.05, 60.0, default=1.0)
     clock_wait: float = spec('s', 'how long after its first message a bag with no /clock '
-                             'publisher in the graph waits before it records in wall time',
-                             0.0, 60.0, default=1.0)
+                             'publisher in the graph waits before it records in wall time '
+                             '(longer than a discovery that missed its first announcements)',
+                             0.0, 60.0, default=4.0)
     take_batch: int = spec('-', 'messages taken per topic per pass of the take loop', 1,
                            100000, default=200)
     stop_time: float = spec('s', 'simulation time a ~/stop ends the bag at, once every topic '

@@ -94,10 +94,11 @@ class Sequencer:
 
     # ---- input ---------------------------------------------------------------------------
 
-    def clock(self, sim_ns: int, source_ns: int, sequence: int | None = None) -> Jump | None:
+    def clock(self, sim_ns: int, source_ns: int, sequence: int | None = None, writer=None
+              ) -> Jump | None:
         """A ``/clock`` sample; a jump (a new simulator) is returned (the caller starts a new
         bag)."""
-        jump = self.time.on_clock(sim_ns, source_ns, sequence)
+        jump = self.time.on_clock(sim_ns, source_ns, sequence, writer)
         if jump is None:
             for t in self._topics.values():
                 self._settle(t)

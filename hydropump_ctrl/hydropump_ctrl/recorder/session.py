@@ -194,11 +194,12 @@ class Recorder:
         self.closed.append((path, s.messages))
         return self.closed[-1]
 
-    def _restart(self, why: str, clock_ns: int, source_ns: int, sequence: int | None) -> None:
+    def _restart(self, why: str, clock_ns: int, source_ns: int, sequence: int | None,
+                 writer=None) -> None:
         old, _ = self._close(why)
         self.start()
         self.session.start_sequencer('sim')
-        self.session.seq.clock(clock_ns, source_ns, sequence)
+        self.session.seq.clock(clock_ns, source_ns, sequence, writer)
         self._log('warn', f'{why}: closed {old}, recording to {self.session.path}')
 
     # ---- messages ------------------------------------------------------------------------
@@ -212,17 +213,17 @@ class Recorder:
         if s is None:
             return
         ns, src = header_stamp(data), info['source_timestamp']
-        seq_no = info.get('publication_sequence_number')
+        seq_no, writer = info.get('publication_sequence_number'), info.get('writer')
         if s.seq is None:
             s.start_sequencer('sim')
         elif s.seq.mode == 'wall':
             self._restart('a /clock appeared: the bag so far is in wall time, the next one in '
-                          'simulation time', ns, src, seq_no)
+                          'simulation time', ns, src, seq_no, writer)
             return
         before = s.seq.time.latest
-        jump = s.seq.clock(ns, src, seq_no)
+        jump = s.seq.clock(ns, src, seq_no, writer)
         if jump is not None:
-            self._restart(jump.describe(), ns, src, seq_no)
+            self._restart(jump.describe(), ns, src, seq_no, writer)
         elif before is None or ns > before:
             self._last_clock = time.monotonic()
 

@@ -35,7 +35,7 @@ from hydropump_sim.params import default_params_path
 from hydropump_sim.schema import check_all, ParamError, read_params_file, specs_of
 
 from . import bridge, entry
-from .conversions import stamp, to_ns
+from .conversions import ClockWriter, stamp, to_ns
 
 FLOAT_TOPICS = ('line_flow', 'pump_flow', 'load_flow', 'solenoid_current')
 PRESSURE_TOPICS = ('line_pressure', 'load_pressure', 'actuator_pressure')
@@ -97,9 +97,11 @@ class ControllerNode(bridge.ExplainedParameters, LifecycleNode):
             self._entities.append(sub(FluidPressure, topic, lambda m, t=topic: self._publish(
                 self.sup.measurement(t, m.fluid_pressure, stamp_ns=to_ns(m.header.stamp))),
                 latest))
+        writer = ClockWriter(self)
         self._entities.append(sub(ClockMsg, '/clock', lambda m, info: self._publish(
             self.sup.clock(to_ns(m.clock), info['source_timestamp'],
-                           info.get('publication_sequence_number'))),
+                           info.get('publication_sequence_number'),
+                           writer.of(info['source_timestamp']))),
             QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)))
         self._entities.append(sub(Float64, '~/reference', self._on_reference, 10))
         steady = Clock(clock_type=ClockType.STEADY_TIME)
@@ -109,6 +111,7 @@ class ControllerNode(bridge.ExplainedParameters, LifecycleNode):
                 wall.now().nanoseconds, self.count_publishers('/clock'))), clock=steady),
             self.create_timer(0.05, lambda: self._publish(self.sup.check_watchdog()),
                               clock=steady),
+            self.create_timer(0.1, writer.refresh, clock=steady),
             self.create_timer(1.0, self._publish_diagnostics, clock=steady)]
         self.get_logger().info(f'configured: {cfg.controller.algorithm} in '
                                f'{cfg.controller.mode} mode at {cfg.controller.update_rate:g} Hz')

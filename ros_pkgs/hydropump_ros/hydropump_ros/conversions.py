@@ -36,3 +36,29 @@ def to_ns(t: Time) -> int:
 def seconds_to_ns(t: float) -> int:
     """Seconds (simulation time) as whole nanoseconds."""
     return int(round(t * NS))
+
+
+class ClockWriter:
+    """The identity of the ``/clock`` writer as the graph shows it (its endpoint GIDs, sorted),
+    for the rule of time's new-writer check (``hydropump_ctrl.timebase``): read again whenever
+    ``/clock`` resumes after a pause of :attr:`GAP` (a new simulator's first samples) and on
+    :meth:`refresh`. While the graph shows no writer the last identity is kept."""
+
+    GAP = 0.3   # s of the publisher's wall clock between two /clock samples
+
+    def __init__(self, node):
+        self._node = node
+        self.tag = None
+        self._last: int | None = None
+
+    def refresh(self) -> None:
+        infos = self._node.get_publishers_info_by_topic('/clock')
+        if infos:
+            self.tag = tuple(sorted(bytes(i.endpoint_gid) for i in infos))
+
+    def of(self, source_ns: int):
+        """The writer identity for a sample sent at ``source_ns``."""
+        if self._last is None or source_ns - self._last > self.GAP * 1e9:
+            self.refresh()
+        self._last = source_ns
+        return self.tag

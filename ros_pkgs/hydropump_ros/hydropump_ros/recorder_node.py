@@ -41,6 +41,7 @@ from hydropump_ctrl.recorder import (
 from hydropump_sim.schema import spec_map, specs_of
 
 from . import bridge, entry
+from .conversions import ClockWriter
 
 STOP_LIMIT = 0.8   # s: a stop waits at most this long for messages still on their way
 END_LIMIT = 30.0   # s: ... and this long for every topic to reach a given stop_time
@@ -95,6 +96,7 @@ class RecorderNode(bridge.ExplainedParameters, Node):
             if msgtype:
                 self._add(topic, msgtype)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self._writer = ClockWriter(self)
         self.create_timer(0.2, self._discover, clock=steady)
         self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.create_timer(1.0, self._publish_diagnostics, clock=steady)
@@ -131,6 +133,7 @@ class RecorderNode(bridge.ExplainedParameters, Node):
                 if topic in graph:
                     self._add(topic, graph[topic][0])
         counts = {topic: self._io.count_publishers(topic) for topic in self.types}
+        self._writer.refresh()
         with self._lock:
             self._pub_counts = counts
             self.rec.matched()
@@ -181,7 +184,9 @@ class RecorderNode(bridge.ExplainedParameters, Node):
             if taken is None:
                 break
             got += 1
-            rec.clock(*taken)
+            data, info = taken
+            info['writer'] = self._writer.of(info['source_timestamp'])
+            rec.clock(data, info)
         rec.advance(self._io.count_publishers('/clock') if rec.session and
                     rec.session.seq is None else 1)
         return got
