@@ -232,7 +232,20 @@ def test_sigint_closes_the_bag_within_a_second(nodes, test_node, tmp_path):
     ready = test_node.create_client(Trigger, 'recorder/ready')
     spin_until(test_node, lambda: call(test_node, ready, Trigger.Request()).message.startswith(
         'waiting for a publisher on /solenoid_current_cmd'), 30, 'the recorder to match')
-    time.sleep(0.5)  # half a second of a paced run
+    # Matched is not yet delivered (on a loaded machine data can lag discovery): wait until
+    # the recorder reports what it has taken.
+    from diagnostic_msgs.msg import DiagnosticArray
+    taken = []
+
+    def on_diag(msg):
+        for st in msg.status:
+            if st.name == 'recorder':
+                kv = {v.key: v.value for v in st.values}
+                taken.append(int(kv.get('messages', 0)) + int(kv.get('buffered', 0)))
+    test_node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, 10)
+    spin_until(test_node, lambda: taken and taken[-1] >= 2000, 30,
+               'the recorder to take two thousand messages')
+    time.sleep(0.5)  # half a second more of a paced run
     t0 = time.monotonic()
     assert rec.stop(signal.SIGINT) == 0
     assert time.monotonic() - t0 < 1.5  # the process exits; the bag closed within a second
