@@ -19,6 +19,15 @@ Modules, each building only on those above it:
 - :mod:`.report` - tables, JSON, Markdown, Fig. 5 and 6;
 - :mod:`.synthetic` - closed-form test data with a known truth (not imported here).
 
+Beyond eq. 19 (imported from their modules; they need the plant library's simulator):
+
+- :mod:`.matrix` - the whole of eq. 16 from bags (``hydropump fit --matrix``);
+- :mod:`.identifiability` - which parameters the data determine;
+- :mod:`.calibrate` - grey-box calibration of the fine model (``hydropump calibrate``,
+  ``hydropump validate``);
+- :mod:`.design` - experiment design from the identifiability analysis;
+- :mod:`.calibration_report` - the calibration's plots and page.
+
 Pure Python: nothing here imports ROS.
 """
 
