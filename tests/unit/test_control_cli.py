@@ -63,3 +63,27 @@ def test_closed_loop_plots_emc_beside_pi(tmp_path, capsys):
     assert 'flow_step_30_70.png' in pngs and 'unreachable.png' in pngs
     assert any(p.startswith('aperture_') for p in pngs)
     assert all((tmp_path / p).stat().st_size > 10_000 for p in pngs)
+
+
+def test_design_from_a_fit_result_equals_design_with_its_numbers(tmp_path, capsys):
+    """--from-fit takes G0, tau, t_d from a `hydropump fit` result: the joint fit where there
+    is one, else the pooled mean; the file written is the one the numbers give."""
+    import json
+
+    from hydropump_ctrl.ident.report import SCHEMA
+    res = tmp_path / 'result.json'
+    res.write_text(json.dumps({'schema': SCHEMA, 'pooled': {
+        'G0': 98.0, 'tau': 0.11, 'td': 0.05,
+        'joint': {'G0': 97.0, 'tau': 0.105, 'td': 0.052}}}))
+    a, b = tmp_path / 'a.yaml', tmp_path / 'b.yaml'
+    assert main(['design', '--params', PUMP, '--from-fit', str(res), '--out', str(a)]) == 0
+    assert 'joint fit' in capsys.readouterr().out
+    assert main(['design', '--params', PUMP, '--G0', '97', '--tau', '0.105', '--t-d', '0.052',
+                 '--out', str(b)]) == 0
+    assert load_config(a) == load_config(b)
+    bad = tmp_path / 'bad.json'
+    for text, words in (('{"schema": "other"}', 'not a `hydropump fit` result'),
+                        ('not json', 'not a JSON fit result')):
+        bad.write_text(text)
+        assert main(['design', '--params', PUMP, '--from-fit', str(bad), '--dry-run']) == 2
+        assert words in capsys.readouterr().err
