@@ -271,7 +271,7 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
     from ..ident import fit_bags, format_table, read_recording, write_report
     from . import plots, report
     t0 = time.perf_counter()
-    echo('[2/5 fitting] eq. 19 on the identification bags ...')
+    echo('[3/5 fitting] eq. 19 on the identification bags ...')
     ident = fit_bags([exp.bag(bag_dir) for exp in idents], params=params, progress=None)
     fit_paths = write_report(ident, run_dir / 'identification', params=params)
     truth = plant_truth(params, profile, ident)

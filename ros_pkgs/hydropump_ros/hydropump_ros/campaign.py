@@ -252,15 +252,15 @@ def run(args) -> int:
         os.environ['ROS_DOMAIN_ID'] = str(did)
         orch = Orchestrator()
         try:
-            # 1. Identification campaign, then 3. the closed loop while the graph tools are up
-            # (reported after the fit).
+            # 1. The identification campaign, then 2. the closed loop, while the graph tools
+            # are up; the stages are numbered in the order they run.
             walls['identification'] = _run_all(orch, 'identification', 1, idents, run_dir,
                                                 bag_dir, profile_path)
-            walls['closed loop'] = _run_all(orch, 'closed loop', 3, loops, run_dir, bag_dir,
+            walls['closed loop'] = _run_all(orch, 'closed loop', 2, loops, run_dir, bag_dir,
                                              profile_path)
         finally:
             orch.close()
-    # 2. Fitting, 4. model analysis, 5. report: no graph needed.
+    # 3. Fitting, 4. model analysis, 5. report: no graph needed.
     page = analyse_campaign(run_dir, bag_dir, params, profile, idents, loops, walls, t_all,
                             echo=_progress)
     print(f'\nreport: {page.resolve()}\nbags: {bag_dir.resolve()}')
