@@ -211,7 +211,8 @@ def _cli(*args):
                           capture_output=True, text=True, timeout=300)
 
 
-def test_cli_errors_are_one_line(usual, tmp_path):
+def test_cli_errors_are_one_line(usual, tmp_path, capsys):
+    from hydropump_ctrl.cli import main
     _, paths, _, _ = usual
     bad = tmp_path / 'bad.yaml'
     bad.write_text('line:\n  V_l: -1\n')
@@ -222,13 +223,14 @@ def test_cli_errors_are_one_line(usual, tmp_path):
         (['--free', 'line.V_l', '--params', str(bad)], 'line.V_l'),
         (['--free', 'line.V_l', '--signals', 'line_flux'], '--signals line_flux'),
     ]:
-        proc = _cli('calibrate', str(paths[0]), *args, '--report', str(tmp_path / 'r'))
-        assert proc.returncode == 2, proc.stderr
-        assert 'Traceback' not in proc.stderr
-        assert text in proc.stderr
+        assert main(['calibrate', str(paths[0]), *args, '--report', str(tmp_path / 'r')]) == 2
+        err = capsys.readouterr().err
+        assert text in err and err.startswith('error: ')
+    # As a user runs it: a path that is not a bag, one line and no traceback.
     proc = _cli('calibrate', str(tmp_path / 'nothing'), '--free', 'line.V_l', '--report',
                 str(tmp_path / 'r'))
     assert proc.returncode == 2 and 'Traceback' not in proc.stderr
+    assert proc.stderr.startswith('error: ')
 
 
 def test_cli_calibrate_validate_design_cycle(usual, tmp_path):
@@ -236,7 +238,7 @@ def test_cli_calibrate_validate_design_cycle(usual, tmp_path):
     validate on a held-out bag; design on the calibrated plant."""
     truth, paths, _, _ = usual
     out = tmp_path / 'calibrated.yaml'
-    proc = _cli('calibrate', *map(str, paths[:3]), '--free', 'line.mu_u', 'actuator.P_a_bar',
+    proc = _cli('calibrate', str(paths[0]), '--free', 'line.mu_u', 'actuator.P_a_bar',
                 '--params', str(ROOT / 'config' / 'pump.yaml'), '--out', str(out), '--report',
                 str(tmp_path / 'rep'), '--json', '--no-plots')
     assert proc.returncode == 0, proc.stderr
