@@ -47,6 +47,9 @@ def test_closed_loop_through_the_nodes(demo):
     margin = s['closed_loop']['emc_margin_step']
     assert margin['rise_s'] <= 0.2 and margin['overshoot_pct'] <= 10.0
     assert margin['settling_s'] <= 0.4
+    # Every run starts settled: within 0.2 % of its reference before the step.
+    for name, run in s['closed_loop'].items():
+        assert run['pre_step_error_pct'] < 0.2, (name, run['pre_step_error_pct'])
 
 
 def test_report_files_and_printed_tables(demo):
