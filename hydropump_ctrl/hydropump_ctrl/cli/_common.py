@@ -28,6 +28,14 @@ def add_params_option(parser, purpose: str = '') -> None:
                         '(default: config/pump.yaml)')
 
 
+def add_progress_option(parser, what: str = 'progress') -> None:
+    """``--progress`` / ``--no-progress`` (default: on a terminal), into ``args.progress``."""
+    prog = parser.add_mutually_exclusive_group()
+    prog.add_argument('--progress', dest='progress', action='store_true', default=None,
+                      help=f'show the {what} (default: on a terminal)')
+    prog.add_argument('--no-progress', dest='progress', action='store_false')
+
+
 def plant_file(args) -> Path:
     """The plant parameters file of ``--params``, or the default one."""
     return Path(args.params) if args.params else default_params_path()

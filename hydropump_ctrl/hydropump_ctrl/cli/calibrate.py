@@ -16,7 +16,7 @@ from pathlib import Path
 import sys
 import time
 
-from ._common import add_params_option, output_file, plant_file, run_dir
+from ._common import add_params_option, add_progress_option, output_file, plant_file, run_dir
 
 PARAMS_SUFFIXES = ('.yaml', '.yml')
 
@@ -53,10 +53,7 @@ def _common(p) -> None:
     p.add_argument('--allow-truncated', action='store_true',
                    help='use the readable part of truncated bags')
     p.add_argument('--no-plots', action='store_true', help='report without figures')
-    prog = p.add_mutually_exclusive_group()
-    prog.add_argument('--progress', dest='progress', action='store_true', default=None,
-                      help='show progress (default: on a terminal)')
-    prog.add_argument('--no-progress', dest='progress', action='store_false')
+    add_progress_option(p)
 
 
 def register(sub) -> None:
@@ -122,10 +119,10 @@ def cmd_calibrate(args) -> int:
     report = run_dir(args.report, 'calibrate')
     out = output_file(args.out or report / 'calibrated.yaml', PARAMS_SUFFIXES, 'params file')
     recs = _read(args)
+    show = _progress_printer(args.progress)
     cal = calibrate(recs, base, args.free, offsets=args.offset, fit_delays=not args.no_delays,
-                    signals=args.signals, multistart=not args.no_multistart,
-                    progress=_progress_printer(args.progress))
-    if _progress_printer(args.progress):
+                    signals=args.signals, multistart=not args.no_multistart, progress=show)
+    if show:
         print(file=sys.stderr)
     suggest(cal)
     write_params(cal, out, [f'start: {plant}'] + ([f'layered with the plant settings of '

@@ -15,7 +15,7 @@ import argparse
 import sys
 import time
 
-from ._common import add_params_option, plant_file, positive, run_dir
+from ._common import add_params_option, add_progress_option, plant_file, positive, run_dir
 
 
 def register(subparsers) -> None:
@@ -61,10 +61,7 @@ def register(subparsers) -> None:
     p.add_argument('--matrix', action='store_true',
                    help='fit the whole of eq. 16 instead (G21 on both branches, G11, G12), '
                         'beside the linearisation of the --params file')
-    prog = p.add_mutually_exclusive_group()
-    prog.add_argument('--progress', dest='progress', action='store_true', default=None,
-                      help='show the progress bar (default: on a terminal)')
-    prog.add_argument('--no-progress', dest='progress', action='store_false')
+    add_progress_option(p, 'progress bar')
     p.set_defaults(func=cmd_fit)
 
 

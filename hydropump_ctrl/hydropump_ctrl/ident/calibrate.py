@@ -50,7 +50,7 @@ from hydropump_sim.errors import HydropumpError
 from hydropump_sim.measure import SIGNAL_OUTPUTS
 from hydropump_sim.model import OUTPUTS
 from hydropump_sim.params import Params, params_from_dict
-from hydropump_sim.schema import ParamError, spec_map
+from hydropump_sim.schema import spec_map, unknown_key_line
 from hydropump_sim.simulate import simulate
 from hydropump_sim.trim import equilibrium
 
@@ -107,7 +107,6 @@ def check_free(base: Params, free: Sequence[str], recorded: Sequence[str] = ()) 
     errors = []
     if not free:
         return ['no free parameter: name at least one with --free (e.g. actuator.mu_a)']
-    from hydropump_sim.schema import unknown_key_line
     seen = set()
     for name in free:
         if name in seen:
@@ -321,7 +320,9 @@ def excitation_check(exps: Sequence[Experiment]) -> list[str]:
 _OUT_INDEX = {s: OUTPUTS.index(o) for s, o in SIGNAL_OUTPUTS.items() if o is not None}
 
 
-def _held(arr: np.ndarray, dt: float):
+def held_signal(arr: np.ndarray, dt: float):
+    """The samples ``arr`` as a function of time, each held from ``k dt`` to ``(k + 1) dt``
+    (the form :func:`hydropump_sim.simulate` takes an input in)."""
     def signal(t):
         k = np.clip(np.floor(np.asarray(t) / dt + 1e-6).astype(int), 0, arr.size - 1)
         return arr[k]
@@ -337,9 +338,9 @@ def simulate_experiment(params: Params, exp: Experiment, rtol: float | None = No
         x0 = equilibrium(params, exp.initial_current(params),
                          load_pressure=None if exp.load_pressure is None
                          else float(exp.load_pressure[0])).x
-    res = simulate(params, (n - 1) * exp.dt, _held(exp.current, exp.dt),
+    res = simulate(params, (n - 1) * exp.dt, held_signal(exp.current, exp.dt),
                    load_pressure=None if exp.load_pressure is None
-                   else _held(exp.load_pressure, exp.dt),
+                   else held_signal(exp.load_pressure, exp.dt),
                    dt_out=exp.dt, dt_max=exp.dt, rtol=rtol, t0=exp.t0, x0=x0)
     return {s: res.y[:n, _OUT_INDEX[s]] for s in exp.measured}
 
@@ -899,5 +900,5 @@ def write_params(cal: Calibration, path, header_lines: Sequence[str] = ()) -> No
 
 __all__ = ['Calibration', 'CalibrationError', 'DELAY_MAX', 'DERIVED', 'Experiment',
            'OUTPUT_SIGNALS', 'ParameterEstimate', 'calibrate', 'check_free', 'experiment_from',
-           'fit_percent', 'noise_level', 'params_with', 'simulate_experiment', 'tied_values',
-           'validate', 'write_params', 'ParamError']
+           'fit_percent', 'held_signal', 'noise_level', 'params_with', 'simulate_experiment',
+           'tied_values', 'validate', 'write_params']
