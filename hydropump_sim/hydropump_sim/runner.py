@@ -29,6 +29,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Callable, Mapping
+import dataclasses
 from dataclasses import dataclass
 import math
 import threading
@@ -79,8 +80,9 @@ class SimulatorConfig:
                                   default=0.5, live=True)
     safe_current: float = spec('A', 'current applied when commands stop; 0 = the current of '
                                '0 % displacement', 0.0, 5.0, default=0.0, live=True)
-    initial_current: float = spec('A', 'current of the initial equilibrium; 0 = the current '
-                                  'of 50 % displacement', 0.0, 5.0, default=0.0)
+    initial_current: float = spec('A', 'current of the initial equilibrium (live: from the '
+                                  'next ~/reset on); 0 = the current of 50 % displacement',
+                                  0.0, 5.0, default=0.0, live=True)
     diagnostics_period: float = spec('s', 'period of /diagnostics (steady clock)', 0.1, 60.0,
                                      default=1.0)
     start_paused: bool = spec('-', 'wait for ~/pause false before publishing t = 0, so that '
@@ -193,7 +195,6 @@ class Runner:
         self._clock = clock
         self._sleep = sleep
         self._cv = threading.Condition()
-        self.initial_current = cfg.initial_current or self.params.I_nominal
         self._warned: dict[str, float] = {}
         self._pending: dict[str, Any] = {}
         self._stop = False
@@ -203,6 +204,8 @@ class Runner:
         self.stats = {'nan_commands': 0, 'clamped_commands': 0, 'lock_step_timeouts': 0,
                       'watchdog_trips': 0}
         self._periods: deque = deque(maxlen=2000)
+        self._started = False       # the first step's signals are out
+        self._reset_out = False     # a reset's signals are due
         self._reset()
 
     # ---- configuration -------------------------------------------------------------------
@@ -222,8 +225,20 @@ class Runner:
         return self._failed
 
     def _reset(self) -> None:
-        """Back to the initial equilibrium; simulation time keeps running after the start."""
-        self.sim.reset(self.initial_current, keep_time=self.sim.steps > 0)
+        """Back to the initial equilibrium. Once running, at the operating point held now,
+        and time moves on to the next control instant (lock-step; else the next published
+        step), where the reset state is published: simulation time never repeats, so every
+        reader can tell the samples before the reset from those after it."""
+        self.initial_current = self.cfg.initial_current or self.params.I_nominal
+        if self._started:
+            self.sim.set_inputs(**self._pending.pop('inputs', {}))
+            self.sim.reset(self.initial_current, keep_time=True, keep_inputs=True)
+            n = self.cfg.steps_per_period if self.cfg.lock_step else self.cfg.publish_every
+            self.sim.steps = (self.sim.steps // n + 1) * n
+            self.sim.t = self.sim.steps * self.sim.dt
+            self._reset_out = True
+        else:
+            self.sim.reset(self.initial_current, keep_time=self.sim.steps > 0)
         self.sensors = SensorBank(self.profile, self.sim.dt * self.cfg.publish_every)
         self._sensed = {sig for sig in self.sensors.channels if self.profile.spec(sig).active}
         self._current = self.initial_current
@@ -268,7 +283,8 @@ class Runner:
             self._cv.notify_all()
 
     def reset(self) -> None:
-        """Return to the initial equilibrium before the next increment (time keeps running)."""
+        """Return to the initial equilibrium before the next increment, paused or not (time
+        keeps running, see :meth:`_reset`)."""
         with self._cv:
             self._pending['reset'] = True
             self._cv.notify_all()
@@ -279,6 +295,8 @@ class Runner:
         with self._cv:
             if name in LIVE_INPUTS:
                 self._pending.setdefault('inputs', {})[LIVE_INPUTS[name]] = float(value)
+            elif name == 'sensors.seed':  # a new noise stream from the next reset on
+                self.profile = dataclasses.replace(self.profile, seed=int(value))
             else:
                 self.cfg = replace(self.cfg, {name: value})
                 if name == 'pause_at':
@@ -296,18 +314,28 @@ class Runner:
         """Step until :meth:`stop`; publish through ``sink`` (see the module)."""
         with self._cv:
             while self._paused and not self._stop:
+                if self._pending.pop('reset', False):
+                    self._reset()
                 self._cv.wait(0.1)
         self._emit(sink)
+        self._started = True
         next_wall = self._clock()
         last_wall = None
         every = self.cfg.publish_every
         while True:
             with self._cv:
-                if not self._gate():
-                    return
-                self._inputs()
-                if self._resumed:
-                    next_wall, last_wall = self._clock(), None
+                go = self._gate()
+                resumed, reset = self._resumed, self._reset_out
+                if go and not reset:
+                    self._inputs()
+            if not go:
+                return
+            if resumed:
+                next_wall, last_wall = self._clock(), None
+            if reset:  # publish the reset state, then gate again (pause, lock-step)
+                self._reset_out = False
+                self._emit(sink)
+                continue
             if self.sim.steps % every == 0:
                 sink.current(self.sim.t, self._applied_current())
             rtf = self.cfg.real_time_factor
@@ -335,9 +363,8 @@ class Runner:
     def _gate(self) -> bool:
         """Wait (under the lock) until the next increment may run; False when stopping."""
         self._resumed = False
-        if self._pending.pop('reset', False):
-            self._reset()
-            self._failed = None
+        if self._apply_reset():
+            return not self._stop
         pause_at = self._pause_armed
         if pause_at > 0.0 and self.sim.t >= pause_at - 0.5 * self.sim.dt:
             self._pause_armed = 0.0  # once: resuming at that instant does not pause again
@@ -345,9 +372,8 @@ class Runner:
         while (self._paused or self._failed) and not self._stop:
             self._resumed = True
             self._cv.wait(0.1)
-            if self._pending.pop('reset', False):
-                self._reset()
-                self._failed = None
+            if self._apply_reset():
+                return not self._stop
         if self._stop:
             return False
         if self.cfg.lock_step and self.sim.steps % self.cfg.steps_per_period == 0:
@@ -363,6 +389,15 @@ class Runner:
             self._cmd_used = self._cmd_seq
             self._resumed = True
         return not self._stop
+
+    def _apply_reset(self) -> bool:
+        """Apply an asked-for reset; True if its state is to be published now."""
+        if not self._pending.pop('reset', False):
+            return False
+        self._reset()
+        self._failed = None
+        self._resumed = True
+        return self._reset_out
 
     def _inputs(self) -> None:
         """The inputs held from ``t_k``: command (or the watchdog's safe current), the live

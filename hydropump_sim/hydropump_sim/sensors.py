@@ -85,8 +85,8 @@ _SENSOR_CLASSES = {unit: _sensor_class(unit) for unit in _SCALE_MAX}
 Sensors = dataclasses.make_dataclass('Sensors', [
     (sig, _SENSOR_CLASSES[unit], group(factory=_SENSOR_CLASSES[unit]))
     for sig, unit in SIGNALS.items()] + [
-    ('seed', int, spec('-', 'seed of the sensor noise (one stream per signal)', 0,
-                       2 ** 31 - 1, default=0)),
+    ('seed', int, spec('-', 'seed of the sensor noise (one stream per signal; live: from '
+                       'the next ~/reset on)', 0, 2 ** 31 - 1, default=0, live=True)),
 ], frozen=True)
 Sensors.__module__ = __name__
 Sensors.__doc__ = 'Group ``sensors``: the sensor model of every measured signal and the seed.'

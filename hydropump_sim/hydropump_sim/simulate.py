@@ -343,11 +343,16 @@ class Simulator:
         self.steps = 0
         self.reset()
 
-    def reset(self, current: float | None = None, keep_time: bool = False) -> None:
-        """Return to the equilibrium at the parameter file's operating point (and ``current``,
-        absolute A); time restarts at 0 unless ``keep_time``."""
-        self.u = operating_inputs(params=self.params, current=current)
-        self.x = equilibrium(self.params, current, model=self.model).x.copy()
+    def reset(self, current: float | None = None, keep_time: bool = False,
+              keep_inputs: bool = False) -> None:
+        """Return to the equilibrium at ``current`` (absolute A) and the parameter file's
+        operating point, or with ``keep_inputs`` the load pressure, aperture and shaft speed
+        held now; time restarts at 0 unless ``keep_time``."""
+        held = {} if not keep_inputs else {
+            'load_pressure': float(self.u[c.U_PU]), 'aperture': float(self.u[c.U_XI]),
+            'shaft_speed': float(self.u[c.U_FP])}
+        self.u = operating_inputs(self.params, current, **held)
+        self.x = equilibrium(self.params, current, model=self.model, **held).x.copy()
         if not keep_time:
             self.t = 0.0
             self.steps = 0

@@ -216,3 +216,56 @@ def test_sensor_models_act_on_the_published_signals(params):
     assert np.allclose(q / 1e-5, np.round(q / 1e-5))
     p = np.array([f.signals['pump_flow'] for f in sink.frames])
     assert not np.allclose(p / 1e-5, np.round(p / 1e-5))
+
+
+def test_a_reset_while_paused_starts_the_next_experiment_at_the_next_control_instant(params):
+    """What a persistent graph does between two experiments: paused at the end of one, new
+    operating point, initial current and noise seed, reset. The reset state (the equilibrium
+    of eqs. 1-9 at the new point) is published at once, at the next control instant, and the
+    lock-step run waits there for the controller's command."""
+    prof = profile_from_dict({'sensors': {'line_pressure': {'noise_std': 1.0e5}, 'seed': 1}})
+    r = Runner(Simulator(params), cfg(lock_step=True, lock_step_timeout=30.0, pause_at=0.013),
+               profile=prof)
+    sink = Sink(r, 10_000)
+
+    def answer(sink, frame):  # a stand-in controller: one command per control instant
+        if round(frame.t * 1e6) % 5000 == 0:
+            r.command(r.initial_current)  # the plant stays at its equilibrium
+
+    sink.on_frame = answer
+    th = threading.Thread(target=r.run, args=(sink,), daemon=True)
+    th.start()
+    for _ in range(4000):
+        if r.paused and r.sim.steps == 13:
+            break
+        threading.Event().wait(0.005)
+    assert r.paused and r.sim.steps == 13
+    noise_1 = [f.signals['line_pressure'] for f in sink.frames]
+    n_before = len(sink.frames)
+    r.set_parameter('line.P_u', 1.5e7)
+    r.set_parameter('initial_current', 0.6)
+    r.set_parameter('sensors.seed', 2)
+    r.reset()
+    for _ in range(4000):
+        if len(sink.frames) > n_before:
+            break
+        threading.Event().wait(0.005)
+    threading.Event().wait(0.05)
+    # Published at once, while paused, at 15 ms (the next instant after 13 ms), once.
+    assert len(sink.frames) == n_before + 1 and r.paused
+    f = sink.frames[-1]
+    assert f.t == pytest.approx(0.015)
+    eq = equilibrium(params, 0.6, load_pressure=1.5e7)
+    assert f.signals['actuator_position'] == pytest.approx(eq.x[2], rel=1e-9)
+    assert f.signals['load_pressure'] == pytest.approx(1.5e7)
+    r.set_paused(False)
+    sink.n = len(sink.frames) + 20
+    th.join(30)
+    assert not th.is_alive()
+    t = np.array([fr.t for fr in sink.frames])
+    assert np.all(np.diff(t) > 0)  # time never repeats across the reset
+    assert r.stats['lock_step_timeouts'] == 0
+    # The new seed gives another noise stream: the first samples differ from the first run's.
+    noise_2 = [fr.signals['line_pressure'] - sink.frames[n_before].signals['line_pressure']
+               for fr in sink.frames[n_before:n_before + 10]]
+    assert not np.allclose(np.diff(noise_2), np.diff(noise_1[:10]))

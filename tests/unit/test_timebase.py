@@ -278,3 +278,25 @@ def test_wall_time_only_when_no_clock_exists_for_clock_wait(ctrl_config):
     assert sup.wall_tick(10 ** 18, clock_publishers=1) is None   # a simulator is there
     out = sup.wall_tick(10 ** 18)
     assert out is not None and out.stamp_ns == 10 ** 18
+
+
+def test_a_live_algorithm_switch_is_bumpless(ctrl_config, params):
+    """EMC at rest on a flow reference, then ``controller.algorithm: pi`` set live: the next
+    update runs the PI law, starting from the present command, and the loop stays at rest."""
+    sup = Supervisor(ctrl_config, clock=Clock(), log=lambda *a: None)
+    sup.activate()
+    q = 0.4 * params.Q_max
+    assert sup.set_reference(q) is None
+    for k in range(200):
+        _feed(sup, k, q)
+    before = sup.ctrl.command
+    assert sup.ctrl.algorithm == 'emc'
+    assert sup.set_parameters({'controller.algorithm': 'pi'}) is None
+    outs = []
+    for k in range(200, 400):
+        outs += _feed(sup, k, q)
+    assert sup.ctrl.algorithm == 'pi'
+    # The flow sits on its reference: the PI integrator keeps the transferred command.
+    assert max(abs(o.command - before) for o in outs) < 1e-3
+    with pytest.raises(ParamError, match='make_controller builds the other one'):
+        sup.ctrl.set_config({'controller.algorithm': 'emc'})

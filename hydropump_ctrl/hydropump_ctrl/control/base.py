@@ -76,6 +76,11 @@ class Controller:
     def config(self) -> ControllerConfig:
         return self._cfg
 
+    @property
+    def command(self) -> float:
+        """The latest absolute current command [A]."""
+        return self._command
+
     def set_config(self, config: ControllerConfig | Mapping[str, Any]) -> None:
         """Apply new parameters at the next update, without a bump.
 
@@ -92,6 +97,9 @@ class Controller:
         sp = specs()
         bad = [f'{k} is read-only while the controller runs (it fixes the embedded model)'
                for k, v in new_flat.items() if v != old_flat[k] and not sp[k].live]
+        if new.controller.algorithm != self._cfg.controller.algorithm:
+            bad.append(f'controller.algorithm = {new.controller.algorithm}: this object is the '
+                       f'{self.algorithm} law; make_controller builds the other one')
         if bad:
             raise ParamError(bad)
         self._cfg = new
@@ -143,6 +151,11 @@ class Controller:
         if err:
             raise ValueError(err)
         self._refs[mode] = float(value)
+
+    @property
+    def references(self) -> dict[str, float]:
+        """The reference of each mode (SI): ``flow`` and ``margin``."""
+        return dict(self._refs)
 
     @property
     def reference(self) -> float | None:

@@ -50,8 +50,9 @@ FLOW_SIGNALS = ('line_flow', 'pump_flow')
 class General:
     """Group ``controller``: which law runs, in which mode, how fast."""
 
-    algorithm: str = spec('-', 'control law: emc (Embedded Model Control) or pi (baseline)',
-                          choices=ALGORITHMS, default='emc')
+    algorithm: str = spec('-', 'control law: emc (Embedded Model Control) or pi (baseline); '
+                          'live in the node: the new law starts bumplessly from the present '
+                          'command', choices=ALGORITHMS, default='emc', live=True)
     mode: str = spec('-', 'mode: flow (track a flow reference), margin (load sensing: regulate '
                      'P_l - P_u) or open_loop (identification excitation)', choices=MODES,
                      default='flow', live=True)

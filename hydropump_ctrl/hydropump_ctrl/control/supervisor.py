@@ -325,15 +325,27 @@ class Supervisor:
         return self._update(due, dt)
 
     def _update(self, stamp_ns: int, dt: float) -> Output:
+        if self._pending is not None:
+            new, self._pending = self._pending, None
+            if new.controller.algorithm != self.ctrl.config.controller.algorithm:
+                # Another law: built afresh and started from the present command (bumpless
+                # transfer), or from the measurements if a restart is due anyway.
+                old, last, refs = self.ctrl.config, self.ctrl.command, self.ctrl.references
+                self.ctrl = make_controller(new)
+                for mode, value in refs.items():  # those this change leaves as they were
+                    if getattr(new.reference, mode) == getattr(old.reference, mode):
+                        self.ctrl.set_reference(value, mode)
+                if not self._needs_reset:
+                    self.ctrl.reset(last, dict(self._meas))
+                self._log('info', f'switched to {new.controller.algorithm}')
+            else:
+                try:
+                    self.ctrl.set_config(new)
+                except (ParamError, ValueError) as exc:
+                    self._log('error', f'parameter change not applied: {exc}')
         if self._needs_reset:
             self.ctrl.reset(None, dict(self._meas))
             self._needs_reset = False
-        if self._pending is not None:
-            try:
-                self.ctrl.set_config(self._pending)
-            except (ParamError, ValueError) as exc:
-                self._log('error', f'parameter change not applied: {exc}')
-            self._pending = None
         try:
             u = self.ctrl.update(stamp_ns * 1e-9, dt, self._meas)
         except (ArithmeticError, ValueError) as exc:

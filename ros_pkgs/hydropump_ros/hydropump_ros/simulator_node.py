@@ -98,8 +98,7 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         d.errors += [f'{cfg.sensor_profile}: {line}'
                      for line in check_all(Params, overrides)[1] if 'unknown' in line]
         params = d.declare(Params, {**plant, **overrides}, source=plant_file)
-        sensors = d.declare(SensorConfig, profile.flat(), source=cfg.sensor_profile or None,
-                            read_only=True)
+        sensors = d.declare(SensorConfig, profile.flat(), source=cfg.sensor_profile or None)
         d.finish()
         errors = cfg.plant_checks(params)
         if errors:
