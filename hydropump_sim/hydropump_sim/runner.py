@@ -121,6 +121,13 @@ class SimulatorConfig:
         if abs(m - round(m)) > 1e-6 * m or round(m) < 1:
             out.append(f'control_period = {fmt(self.control_period)} s: not a whole number of '
                        f'dt = {fmt(self.dt)} s')
+        elif self.lock_step and not out and round(m) % self.publish_every:
+            # The controller answers the samples of its instants: each must be published.
+            out.append(f'publish_rate = {fmt(self.publish_rate)} Hz: lock-step needs a sample '
+                       f'at every control instant (control_period = '
+                       f'{fmt(self.control_period)} s); use a rate that divides into '
+                       f'{fmt(1.0 / self.control_period)} Hz whole, e.g. '
+                       f'{fmt(1.0 / self.dt)} or {fmt(1.0 / self.control_period)} Hz')
         return out
 
     def plant_checks(self, params: Params) -> list[str]:

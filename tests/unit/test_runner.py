@@ -269,3 +269,13 @@ def test_a_reset_while_paused_starts_the_next_experiment_at_the_next_control_ins
     noise_2 = [fr.signals['line_pressure'] - sink.frames[n_before].signals['line_pressure']
                for fr in sink.frames[n_before:n_before + 10]]
     assert not np.allclose(np.diff(noise_2), np.diff(noise_1[:10]))
+
+
+def test_lock_step_needs_a_sample_at_every_control_instant():
+    # 500 Hz samples every 2 ms: the 5 ms instants would never be published, and a lock-step
+    # run would wait for a command that no controller can send.
+    with pytest.raises(ParamError, match=r'publish_rate = 500 Hz: lock-step needs a sample at '
+                                         r'every control instant.*e\.g\. 1000 or 200 Hz'):
+        cfg(lock_step=True, publish_rate=500.0)
+    assert cfg(lock_step=True, publish_rate=200.0).publish_every == 5
+    assert cfg(lock_step=False, publish_rate=500.0).publish_every == 2

@@ -33,7 +33,7 @@ from ..ident import Recording
 from .closed_loop import disturbance_figures, trim_current
 
 IDENT_TOPICS = ['solenoid_current', 'solenoid_current_cmd', 'line_flow', 'pump_flow',
-                'joint_states', 'line_pressure', 'load_pressure']
+                'joint_states', 'line_pressure', 'load_pressure', 'actuator_pressure']
 LOOP_TOPICS = IDENT_TOPICS + ['load_flow', 'controller/state']
 STAGES = ('identification', 'fitting', 'closed loop', 'model analysis', 'report')
 
@@ -42,22 +42,21 @@ STAGES = ('identification', 'fitting', 'closed loop', 'model analysis', 'report'
 
 @dataclass
 class Experiment:
-    """One run of the graph: node arguments, topics to record, schedule of changes.
+    """One run through the graph: live parameters, topics to record, schedule of changes.
 
     Attributes
     ----------
     name, label : str
-        Bag and log folder name; one line for the progress and the report.
+        Bag name; one line for the progress and the report.
     duration : float
-        Simulated time [s].
+        Simulated time [s], counted from the experiment's start.
     sim, ctrl : dict
-        Parameters of the simulator and the controller node at start-up.
+        Live parameters of the simulator (the operating point, initial current and noise
+        seed, applied by its ``~/reset``) and of the controller, set before the start.
     topics : list of str
-        Topics the recorder records.
+        Topics the experiment needs recorded.
     events : list
-        ``(t, node, {param: value})``: parameters set on a node at simulation time ``t``.
-    scenario : dict, optional
-        Simulator scenario inputs (in simulation time), e.g. an aperture step.
+        ``(t, node, {param: value})``: parameters set on a node ``t`` seconds after the start.
     """
 
     name: str
@@ -67,29 +66,40 @@ class Experiment:
     ctrl: dict
     topics: list
     events: list = field(default_factory=list)
-    scenario: dict | None = None
 
     def bag(self, folder: str | Path) -> Path:
         """The run's bag in ``folder``: named after the experiment."""
         return Path(folder) / self.name
 
 
+def _operating_point(params: Params, current: float, seed: int = 0, **inputs) -> dict:
+    """The simulator's live parameters of an experiment: the whole operating point, since
+    the graph keeps what the previous experiment left."""
+    return {'initial_current': float(current), 'line.P_u': params.line.P_u,
+            'line.xi_u': params.line.xi_u, 'sensors.seed': seed, **inputs}
+
+
+#: The nine identification sets: (step size, centre) of a growing-flow staircase in % of
+#: displacement, at the nominal operating point (the paper: nine data sets of current steps
+#: in the regulating range, growing flow only). The first three share the centre.
+SETS = [(step, centre) for centre in (50.0, 45.0, 55.0) for step in (10.0, 5.0, 15.0)]
+
+
 def identification_experiments(params: Params, n: int = 9, dwell: float = 1.0,
                                levels: int = 4) -> list[Experiment]:
-    """Nine growing-flow staircases: three displacement ranges by three load pressures, each
-    with its own noise seed (the paper: nine data sets, growing flow only)."""
-    ranges = [(20.0, 50.0), (35.0, 65.0), (50.0, 80.0)]
-    loads = [8.0e6, 1.2e7, 1.6e7]
+    """The paper's protocol: ``n`` growing-flow staircases of ``levels`` stairs at the
+    nominal load pressure and aperture, differing in levels, step size and noise seed
+    (:data:`SETS`)."""
     out = []
     for i in range(n):
-        lo, hi = ranges[i % 3]
-        pu = loads[(i // 3) % 3]
+        step, centre = SETS[i % len(SETS)]
+        lo = centre - step * (levels - 1) / 2.0
+        hi = lo + step * (levels - 1)
         out.append(Experiment(
             name=f'ident_{i + 1}',
-            label=f'staircase {lo:.0f} -> {hi:.0f} %, P_u {pu / 1e5:.0f} bar, seed {i + 1}',
+            label=f'staircase {lo:g} -> {hi:g} % in {step:g} % steps, seed {i + 1}',
             duration=levels * dwell,
-            sim={'initial_current': float(current_for_displacement(params, lo / 100.0)),
-                 'line.P_u': pu, 'sensors.seed': i + 1},
+            sim=_operating_point(params, current_for_displacement(params, lo / 100.0), i + 1),
             ctrl={'controller.mode': 'open_loop', 'excitation.signal': 'staircase',
                   'excitation.direction': 'up', 'excitation.unit': 'percent',
                   'excitation.levels_min': lo, 'excitation.levels_max': hi,
@@ -111,15 +121,16 @@ def closed_loop_experiments(params: Params, algorithms: Sequence[str] = ('emc', 
         base = {'controller.algorithm': alg}
         out += [
             Experiment(f'{alg}_flow_step', f'{alg.upper()}: flow step 30 -> 70 %', duration,
-                       {'initial_current': float(trim_current(params, flow=q30))},
+                       _operating_point(params, trim_current(params, flow=q30)),
                        {**base, 'controller.mode': 'flow', 'reference.flow': q30},
                        LOOP_TOPICS, [(t_step, 'controller', {'reference.flow': q70})]),
             Experiment(f'{alg}_aperture_step', f'{alg.upper()}: aperture 0.5 -> 0.4 at 25 bar',
-                       duration, {'initial_current': float(trim_current(params, margin=2.5e6))},
+                       duration, _operating_point(params, trim_current(params, margin=2.5e6),
+                                                  **{'line.xi_u': 0.5}),
                        {**base, 'controller.mode': 'margin', 'reference.margin': 2.5e6},
-                       LOOP_TOPICS, [], {'aperture': {'steps': [[0.0, 0.5], [t_step, 0.4]]}}),
+                       LOOP_TOPICS, [(t_step, 'simulator', {'line.xi_u': 0.4})]),
             Experiment(f'{alg}_margin_step', f'{alg.upper()}: margin 20 -> 25 bar', duration,
-                       {'initial_current': float(trim_current(params, margin=2.0e6))},
+                       _operating_point(params, trim_current(params, margin=2.0e6)),
                        {**base, 'controller.mode': 'margin', 'reference.margin': 2.0e6},
                        LOOP_TOPICS, [(t_step, 'controller', {'reference.margin': 2.5e6})]),
         ]
@@ -190,7 +201,8 @@ def _average(t: np.ndarray, x: np.ndarray, width: float) -> tuple[np.ndarray, np
     return t[k // 2:k // 2 + y.size], y
 
 
-def loop_figures(params: Params, exp: Experiment, rec: Recording, t_step: float = 0.5) -> dict:
+def loop_figures(params: Params, exp: Experiment, rec: Recording, t_step: float = 0.5,
+                 t0: float = 0.0) -> dict:
     """Figures of one closed-loop run of :func:`closed_loop_experiments`.
 
     The flow is the pump flow of eq. 8 at the recorded plate position (the true flow, not the
@@ -206,7 +218,9 @@ def loop_figures(params: Params, exp: Experiment, rec: Recording, t_step: float 
     rec : Recording
         The run's bag (:func:`hydropump_ctrl.ident.read_recording`).
     t_step : float
-        Simulation time of the step [s].
+        Time of the step from the experiment's start [s].
+    t0 : float
+        Simulation time of the experiment's start [s].
 
     Returns
     -------
@@ -215,7 +229,7 @@ def loop_figures(params: Params, exp: Experiment, rec: Recording, t_step: float 
         ``peak_bar`` and ``recovery_s`` (back within 1 bar of the set-point). Both: ``iae``
         with its ``iae_unit``, the averaged output ``y = (t, value)`` in ``unit``.
     """
-    t = rec.t + rec.t0_ns * 1e-9   # simulation time, as the schedule
+    t = rec.t + rec.t0_ns * 1e-9 - t0   # from the experiment's start, as the schedule
     if exp.ctrl['controller.mode'] == 'flow':
         t, y = _average(t, pump_flow(params, rec['actuator_position']),
                         1.0 / params.input.dither_freq)
@@ -225,7 +239,8 @@ def loop_figures(params: Params, exp: Experiment, rec: Recording, t_step: float 
         # Absolute pressures in the bag: their difference is the gauge margin.
         t, y = _average(t, rec['line_pressure'] - rec['load_pressure'], 0.02)
         y0 = exp.ctrl['reference.margin']
-        y1 = exp.events[0][2]['reference.margin'] if exp.events else y0
+        y1 = next((v['reference.margin'] for _, _, v in exp.events
+                   if 'reference.margin' in v), y0)
         scale, unit, band = 1e-5, 'bar', 0.5e5
     # Settled before the step: the output's mean error just before it [% of y0], over 0.1 s
     # of the true flow, or 0.3 s of the measured margin (to average the pressure sensors'
@@ -246,11 +261,17 @@ def loop_figures(params: Params, exp: Experiment, rec: Recording, t_step: float 
             'pre_step_error_pct': pre_pct}
 
 
+def stage_times(wall: float, simulated: float = 0.0, overhead: float = 0.0) -> dict:
+    """One row of the stage table: wall time, simulated time and orchestration overhead [s]."""
+    return {'simulated_s': simulated, 'wall_s': wall, 'overhead_s': overhead}
+
+
 # ---- after the runs -------------------------------------------------------------------------
 
 def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: SensorProfile,
                      idents: Sequence[Experiment], loops: Sequence[Experiment], walls: dict,
-                     started: float, echo: Callable[[str], None] = print) -> Path:
+                     started: float, starts: dict | None = None,
+                     echo: Callable[[str], None] = print) -> Path:
     """Stages 2, 4 and 5 of the demo on its bags: fit, model analysis, report.
 
     Parameters
@@ -265,9 +286,12 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
     idents, loops : sequence of Experiment
         The identification and the closed-loop experiments that were run.
     walls : dict
-        Wall times [s] of the stages so far; this adds the others and ``total``.
+        Times of the stages so far, ``{stage: {'simulated_s', 'wall_s', 'overhead_s'}}``
+        (:func:`stage_times`); this adds the others and ``total``.
     started : float
         ``time.perf_counter()`` at the start of the run, for the total.
+    starts : dict, optional
+        Simulation time [s] each experiment started at, by name (default 0).
     echo : callable
         Where progress lines and tables go (one string a call).
 
@@ -285,19 +309,20 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
     ident = fit_bags([exp.bag(bag_dir) for exp in idents], params=params, progress=None)
     fit_paths = write_report(ident, run_dir / 'identification', params=params)
     truth = plant_truth(params, profile, ident)
-    walls['fitting'] = time.perf_counter() - t0
+    walls['fitting'] = stage_times(time.perf_counter() - t0)
     echo(format_table(ident))
     rows = report.identification_rows(ident, truth)
     echo(report.text_table(['', 'G0 [%/range]', 'tau [ms]', 't_d [ms]'], rows))
-    loop_results = {exp.name: loop_figures(params, exp, read_recording(exp.bag(bag_dir)))
-                    for exp in loops}
+    starts = starts or {}
+    loop_results = {exp.name: loop_figures(params, exp, read_recording(exp.bag(bag_dir)),
+                                           t0=starts.get(exp.name, 0.0)) for exp in loops}
     echo(report.text_table(*report.loop_table(loop_results)))
     t0 = time.perf_counter()
     echo('[4/5 model analysis] modes and the singular-perturbation check ...')
     text, steps = analysis.format_report(params)
     modal = text[text.index('== Fine-model modes'):text.index('== Paper linear models')]
     echo(modal)
-    walls['model analysis'] = time.perf_counter() - t0
+    walls['model analysis'] = stage_times(time.perf_counter() - t0)
     t0 = time.perf_counter()
     echo('[5/5 report] figures and report.html ...')
     figs = run_dir / 'figures'
@@ -306,13 +331,14 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
     plots.plot_bode_identified(params, ident, figs / 'bode.png')
     hyst = plots.plot_hysteresis(params, figs / 'hysteresis.png')
     plots.plot_closed_loop(loop_results, figs / 'emc_vs_pi.png')
-    walls['report'] = time.perf_counter() - t0
-    walls['total'] = time.perf_counter() - started
+    walls['report'] = stage_times(time.perf_counter() - t0)
+    walls['total'] = stage_times(time.perf_counter() - started,
+                                 sum(v['simulated_s'] for v in walls.values()),
+                                 sum(v['overhead_s'] for v in walls.values()))
     sections = report.report_sections(ident, truth, rows, loop_results, modal, text, hyst,
                                       walls, fit_paths, figs, bag_dir)
     page = report.write_html(run_dir, sections)
     (run_dir / 'summary.json').write_text(json.dumps(report.summary(
         ident, truth, loop_results, walls), indent=2) + '\n')
-    echo(report.text_table(['stage', 'wall time [s]'],
-                           [[k, f'{v:.1f}'] for k, v in walls.items()]))
+    echo(report.text_table(report.STAGE_HEAD, report.stage_rows(walls)))
     return page

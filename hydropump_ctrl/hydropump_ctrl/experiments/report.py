@@ -92,10 +92,26 @@ def report_sections(ident, truth, rows, loops, modal, analysis_text, hyst, walls
         ('Model analysis (section IV)', f'<pre>{html.escape(modal)}</pre>'
          f'<details><summary>full analysis</summary><pre>{html.escape(analysis_text)}'
          f'</pre></details>'),
-        ('Run', _table(['stage', 'wall time [s]'], [[k, f'{v:.1f}'] for k, v in walls.items()])
+        ('Run', _table(STAGE_HEAD, stage_rows(walls))
          + f'<p>Bags (rosbag2, MCAP): <code>{html.escape(str(bag_dir.resolve()))}</code>; '
            '<code>ros2 bag info</code> and <code>ros2 bag play</code> read them.</p>'),
     ]
+
+
+STAGE_HEAD = ['stage', 'simulated [s]', 'wall [s]', 'orchestration overhead [% of wall]']
+
+
+def stage_rows(stages: dict) -> list[list[str]]:
+    """Rows of the stage table from ``{stage: {'simulated_s', 'wall_s', 'overhead_s'}}``:
+    the overhead is the graph's wall time not spent stepping (start-up, parameter sets,
+    service calls between experiments)."""
+    rows = []
+    for name, st in stages.items():
+        wall = st['wall_s']
+        share = f'{100.0 * st["overhead_s"] / wall:.0f}' if wall > 0 else ''
+        rows.append([name, f'{st["simulated_s"]:g}' if st['simulated_s'] else '',
+                     f'{wall:.1f}', share])
+    return rows
 
 
 def summary(ident, truth: dict, loops: dict, walls: dict) -> dict:
@@ -108,7 +124,7 @@ def summary(ident, truth: dict, loops: dict, walls: dict) -> dict:
             'plant': truth,
             'closed_loop': {k: {kk: vv for kk, vv in v.items() if kk != 'y'}
                             for k, v in loops.items()},
-            'wall_time_s': walls}
+            'wall_time_s': {k: v['wall_s'] for k, v in walls.items()}, 'stages': walls}
 
 
 # ---- the page -------------------------------------------------------------------------------

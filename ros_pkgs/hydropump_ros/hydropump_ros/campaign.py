@@ -1,11 +1,12 @@
 """``hydropump-demo``: the paper end to end through the real node graph.
 
-1. Identification campaign: nine open-loop experiments (growing-flow current staircases at
-   differing operating points and noise seeds) through the simulator (bench sensor profile),
-   the controller in ``open_loop`` mode and the recorder, in lock-step, into nine bags.
-2. Fitting: eq. 19 on the nine bags (``hydropump fit``), next to the paper's figures and the
+1. Identification campaign: nine open-loop experiments (the paper's protocol: growing-flow
+   current staircases at the nominal operating point, differing in levels, step sizes and
+   noise seeds) through the simulator (bench sensor profile), the controller in
+   ``open_loop`` mode and the recorder, in lock-step, into nine bags.
+2. Closed loop: EMC and PI on a flow step, a load-aperture step and a margin set-point step.
+3. Fitting: eq. 19 on the nine bags (``hydropump fit``), next to the paper's figures and the
    plant's own (a noise-free, delay-free twin of each experiment, and the configured delay).
-3. Closed loop: EMC and PI on a flow step, a load-aperture step and a margin set-point step.
 4. Model analysis: the modal table and the singular-perturbation check.
 5. Report: one self-contained HTML page with PNG figures in ``out/<timestamp>/``, the bags
    beside it.
@@ -14,7 +15,9 @@ This module owns what needs the graph: the node processes, their services and pa
 the simulation clock. The experiments, the analysis of their bags and the report are pure
 (:mod:`hydropump_ctrl.experiments.campaign`).
 
-Every node runs in its own process, logs to ``<run>/logs/<experiment>/<node>.log``, and is
+The three nodes are started once (:class:`Graph`) and every experiment goes through them:
+live parameters, the simulator's ``~/reset`` and ``pause_at``, one bag per experiment from
+the recorder's ``~/start`` and ``~/stop``. Each node logs to ``<run>/logs/<node>.log`` and is
 ended by PID. A node that fails stops the run with a message that names it and its log.
 """
 
@@ -35,6 +38,8 @@ from hydropump_ctrl.experiments.campaign import (
     closed_loop_experiments,
     Experiment,
     identification_experiments,
+    LOOP_TOPICS,
+    stage_times,
 )
 from hydropump_sim.errors import HydropumpError
 
@@ -73,12 +78,15 @@ class Orchestrator:
     def __init__(self):
         import rclpy
         from rclpy.node import Node
+        from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
         from rosgraph_msgs.msg import Clock
         self.rclpy = rclpy
         rclpy.init()
         self.node = Node(f'hydropump_demo_{os.getpid()}')
         self.t = -1.0
-        self.node.create_subscription(Clock, '/clock', self._on_clock, 100)
+        # Only the latest time matters here: one callback per spin, not one per step.
+        self.node.create_subscription(Clock, '/clock', self._on_clock, QoSProfile(
+            depth=1, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST))
         self._clients = {}
         self.procs: dict = {}
 
@@ -103,6 +111,11 @@ class Orchestrator:
                 raise DemoError(f'timed out after {timeout:g} s waiting for {what}')
             self.rclpy.spin_once(self.node, timeout_sec=0.01)
 
+    def service_ready(self, name: str) -> bool:
+        """Has the graph a server of ``name``? (Any type: the name says which node.)"""
+        return any(n == '/' + name.lstrip('/') for n, _ in
+                   self.node.get_service_names_and_types())
+
     def call(self, srv_type, name: str, request, timeout: float = 60.0):
         if name not in self._clients:
             self._clients[name] = self.node.create_client(srv_type, name)
@@ -123,70 +136,138 @@ class Orchestrator:
                 raise DemoError(f'{node} refused {name} = {values[name]}: {result.reason}')
 
 
-def run_experiment(orch: Orchestrator, exp: Experiment, run_dir: Path, bag_dir: Path,
-                   sensor_profile: Path) -> Path:
-    """Start the three nodes, run the experiment in lock-step, stop, return the bag."""
-    from lifecycle_msgs.msg import State
-    from lifecycle_msgs.srv import GetState
-    from std_srvs.srv import SetBool, Trigger
-    logs = run_dir / 'logs' / exp.name
-    logs.mkdir(parents=True, exist_ok=True)
-    bag = exp.bag(bag_dir)
-    # The first step waits until the recorder is matched; the bag ends at the experiment's
-    # end however loaded the machine is.
-    sim = {'lock_step': True, 'lock_step_timeout': 60.0, 'start_paused': True,
-           'command_timeout': 60.0, 'wait_subscribers': 1, **exp.sim}
-    if exp.scenario:
-        import yaml
-        sc = logs / 'scenario.yaml'
-        sc.write_text(yaml.safe_dump({'duration': exp.duration, 'inputs': exp.scenario}))
-        sim['scenario_file'] = str(sc)
-    commands = {
-        'recorder': ['-p', f'output:={bag}', '-p', f'topics:={_ros_value(exp.topics)}',
-                     '-p', f'stop_time:={float(exp.duration)!r}'],
-        'simulator': ['--params-file', str(sensor_profile)] + _ros_args(sim),
-        'controller': ['-p', 'autostart:=true',
-                       '-p', 'watchdog.hold_timeout:=30.0', '-p', 'watchdog.safe_timeout:=60.0']
-        + _ros_args(exp.ctrl),
-    }
-    orch.procs = {}
-    orch.t = -1.0  # this experiment's clock only
-    try:
-        for name in ('recorder', 'simulator', 'controller'):
-            log = logs / f'{name}.log'
-            proc = subprocess.Popen([_executable(name), '--ros-args'] + commands[name],
+#: Measurement rate of the campaign [Hz]: 2 ms samples resolve a 100 ms time constant and a
+#: 55 ms delay (the fit takes any fraction of a sample), and lock-step runs about three times
+#: faster than at the simulator's default 1 kHz, since each sample costs every node a message
+#: per topic.
+PUBLISH_RATE = 200.0
+
+
+class Graph:
+    """The campaign's one node graph: simulator (lock-step, bench profile, paused), controller
+    and recorder, started once; :meth:`run` takes one experiment through it into its bag.
+
+    Between experiments the simulator stands paused: the next one sets its operating point,
+    initial current and noise seed (live), opens its bag, restarts the controller (lifecycle
+    deactivate, parameters, activate) and resets the simulator, whose reset state comes out
+    at the next control instant ``t0``. The schedule then runs in simulation time from
+    ``t0``: pause at each change, apply it, go on, and at the end close the bag at
+    ``t0 + duration`` exactly.
+    """
+
+    NODES = ('recorder', 'simulator', 'controller')
+
+    def __init__(self, orch: Orchestrator, log_dir: Path, sensor_profile: Path,
+                 topics: list[str]):
+        self.orch = orch
+        self.log_dir = log_dir
+        log_dir.mkdir(parents=True, exist_ok=True)
+        # Waits are long: a loaded machine must slow the run down, never cut it short.
+        sim = {'lock_step': True, 'lock_step_timeout': 60.0, 'start_paused': True,
+               'command_timeout': 60.0, 'wait_subscribers': 1, 'publish_rate': PUBLISH_RATE}
+        self.commands = {
+            'recorder': ['-p', 'autostart:=false', '-p', f'topics:={_ros_value(topics)}'],
+            'simulator': ['--params-file', str(sensor_profile)] + _ros_args(sim),
+            'controller': ['-p', 'autostart:=true', '-p', 'watchdog.hold_timeout:=30.0',
+                           '-p', 'watchdog.safe_timeout:=60.0'],
+        }
+        self.ready_s: dict[str, float] = {}
+        self.running_s = 0.0  # wall time the simulator spent stepping
+
+    def start(self) -> dict[str, float]:
+        """Start the nodes (in parallel) and wait until each is ready; its start-up time [s]
+        from the process start: the simulator's services answer, the controller is active,
+        the recorder has matched a publisher on every topic."""
+        from lifecycle_msgs.msg import State
+        from lifecycle_msgs.srv import GetState
+        from std_srvs.srv import Trigger
+        orch, t0 = self.orch, time.perf_counter()
+        for name in self.NODES:
+            log = self.log_dir / f'{name}.log'
+            proc = subprocess.Popen([_executable(name), '--ros-args'] + self.commands[name],
                                     stdout=open(log, 'w'), stderr=subprocess.STDOUT)
-            orch.procs[name] = (proc, log, exp.name)
+            orch.procs[name] = (proc, log, 'the campaign')
+        orch.spin_until(lambda: orch.service_ready('simulator/reset'), 60,
+                        'the simulator to start')
+        self.ready_s['simulator'] = time.perf_counter() - t0
         get_state = GetState.Request()
         orch.spin_until(lambda: orch.call(GetState, 'controller/get_state', get_state)
                         .current_state.id == State.PRIMARY_STATE_ACTIVE, 60,
                         'the controller to be active')
+        self.ready_s['controller'] = time.perf_counter() - t0
+        orch.spin_until(lambda: orch.service_ready('recorder/start'), 60,
+                        'the recorder to start')
+        self.ready_s['recorder'] = time.perf_counter() - t0
         orch.spin_until(lambda: orch.call(Trigger, 'recorder/ready', Trigger.Request()).success,
                         60, 'the recorder to match every topic')
-        # Run through the schedule: pause at each change, apply it, go on.
-        for t, node, values in sorted(exp.events, key=lambda e: e[0]) + [
-                (exp.duration, None, None)]:
-            orch.set_params('simulator', {'pause_at': float(t)})
-            orch.call(SetBool, 'simulator/pause', SetBool.Request(data=False))
-            orch.spin_until(lambda t=t: orch.t >= t - 1e-9, 600,
-                            f'simulation time {t:g} s of {exp.name}')
-            if node:
-                orch.set_params(node, values)
+        self.ready_s['graph'] = time.perf_counter() - t0
+        return self.ready_s
+
+    def _lifecycle(self, transition: int) -> None:
+        from lifecycle_msgs.msg import Transition
+        from lifecycle_msgs.srv import ChangeState
+        req = ChangeState.Request(transition=Transition(id=transition))
+        if not self.orch.call(ChangeState, 'controller/change_state', req).success:
+            raise DemoError(f'the controller refused lifecycle transition {transition}: see '
+                            f'{self.log_dir / "controller.log"}')
+
+    def run(self, exp: Experiment, bag: Path) -> float:
+        """Run ``exp`` into ``bag``; the simulation time [s] it started at."""
+        from lifecycle_msgs.msg import Transition
+        from std_srvs.srv import Trigger
+        orch = self.orch
+        self._lifecycle(Transition.TRANSITION_DEACTIVATE)
+        orch.set_params('controller', exp.ctrl)
+        orch.set_params('simulator', exp.sim)
+        orch.set_params('recorder', {'output': str(bag)})
+        start = orch.call(Trigger, 'recorder/start', Trigger.Request())
+        if not start.success:
+            raise DemoError(f'the recorder could not open {bag}: {start.message}')
+        self._lifecycle(Transition.TRANSITION_ACTIVATE)
+        before = orch.t
+        if not orch.call(Trigger, 'simulator/reset', Trigger.Request()).success:
+            raise DemoError('the simulator refused ~/reset')
+        if before < 0.0:
+            t0 = 0.0  # not started yet: the reset state is the first step, at t = 0
+        else:
+            orch.spin_until(lambda: orch.t > before, 60, f'the reset of {exp.name}')
+            t0 = orch.t
+        for t, node, values in sorted(exp.events, key=lambda e: e[0]):
+            self._run_to(t0 + float(t), exp)
+            orch.set_params(node, values)
+        # One sample past the end, so that the current held from the last instant is out too;
+        # the bag ends at the end exactly.
+        self._run_to(t0 + exp.duration + 1.0 / PUBLISH_RATE, exp)
+        orch.set_params('recorder', {'stop_time': t0 + exp.duration})
         if not orch.call(Trigger, 'recorder/stop', Trigger.Request(), timeout=120).success:
-            raise DemoError(f'the recorder of {exp.name} did not close its bag: see '
-                            f'{logs / "recorder.log"}')
-    finally:
-        for proc, _, _ in orch.procs.values():
+            raise DemoError(f'the recorder did not close {bag}: see '
+                            f'{self.log_dir / "recorder.log"}')
+        return t0
+
+    def _run_to(self, t: float, exp: Experiment) -> None:
+        """Let the simulator run to simulation time ``t`` [s] and pause there."""
+        from std_srvs.srv import SetBool
+        orch = self.orch
+        orch.set_params('simulator', {'pause_at': t})
+        t_run = time.perf_counter()
+        orch.call(SetBool, 'simulator/pause', SetBool.Request(data=False))
+        orch.spin_until(lambda: orch.t >= t - 1e-9, 600,
+                        f'simulation time {t:g} s in {exp.name}')
+        self.running_s += time.perf_counter() - t_run
+
+    def close(self) -> None:
+        """SIGINT, as ``ros2 launch`` stops a node; SIGKILL after 20 s."""
+        procs = [p for p, _, _ in self.orch.procs.values()]
+        for proc in procs:
             if proc.poll() is None:
-                proc.send_signal(signal.SIGTERM)
-        for proc, _, _ in orch.procs.values():
+                proc.send_signal(signal.SIGINT)
+        for proc in procs:
             try:
                 proc.wait(timeout=20)
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait()
-        orch.procs = {}
-    return bag
+        self.orch.procs = {}
 
 
 # ---- the run --------------------------------------------------------------------------------
@@ -214,17 +295,19 @@ def main(argv=None) -> int:
         return 130
 
 
-def _run_all(orch: Orchestrator, what: str, stage: int, exps: list[Experiment], run_dir: Path,
-             bag_dir: Path, sensor_profile: Path) -> float:
-    """Run ``exps`` one after the other, with a progress line each; the wall time [s]."""
-    t0 = time.perf_counter()
+def _run_stage(graph: Graph, what: str, stage: int, exps: list[Experiment], bag_dir: Path,
+               starts: dict) -> dict:
+    """Run ``exps`` one after the other through ``graph``, with a progress line each; the
+    stage's times (:func:`stage_times`)."""
+    t0, running0 = time.perf_counter(), graph.running_s
     for i, exp in enumerate(exps, 1):
         t1 = time.perf_counter()
         _progress(f'[{stage}/5 {what} {i}/{len(exps)}] {exp.label} ...')
-        bag = run_experiment(orch, exp, run_dir, bag_dir, sensor_profile)
+        starts[exp.name] = graph.run(exp, exp.bag(bag_dir))
         _progress(f'      {exp.duration:g} s simulated in {time.perf_counter() - t1:.1f} s'
-                  + (f' -> {bag}' if stage == 1 else ''))
-    return time.perf_counter() - t0
+                  + (f' -> {exp.bag(bag_dir)}' if stage == 1 else ''))
+    wall = time.perf_counter() - t0
+    return stage_times(wall, sum(e.duration for e in exps), wall - (graph.running_s - running0))
 
 
 def run(args) -> int:
@@ -244,25 +327,32 @@ def run(args) -> int:
     dwell = args.dwell or (0.6 if args.quick else 1.0)
     idents = identification_experiments(params, n_sets, dwell)
     loops = closed_loop_experiments(params, ('emc',) if args.quick else ('emc', 'pi'))
-    walls = {}
+    walls, starts = {}, {}
     _progress(f'run folder: {run_dir}')
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    start = random.randrange(100)
-    with domain_id(lambda s=[start]: (s.__setitem__(0, s[0] + 1) or s[0] % 100 + 1)) as did:
+    first = random.randrange(100)
+    with domain_id(lambda s=[first]: (s.__setitem__(0, s[0] + 1) or s[0] % 100 + 1)) as did:
         os.environ['ROS_DOMAIN_ID'] = str(did)
         orch = Orchestrator()
+        graph = Graph(orch, run_dir / 'logs', profile_path, LOOP_TOPICS)
         try:
-            # 1. The identification campaign, then 2. the closed loop, while the graph tools
-            # are up; the stages are numbered in the order they run.
-            walls['identification'] = _run_all(orch, 'identification', 1, idents, run_dir,
-                                                bag_dir, profile_path)
-            walls['closed loop'] = _run_all(orch, 'closed loop', 2, loops, run_dir, bag_dir,
-                                             profile_path)
+            # 1. The identification campaign, then 2. the closed loop, on one graph; the
+            # stages are numbered in the order they run.
+            t0 = time.perf_counter()
+            _progress('[0/5 graph] simulator, controller and recorder ...')
+            ready = graph.start()
+            _progress('      ready in ' + ', '.join(f'{k} {v:.1f} s' for k, v in ready.items()))
+            walls['graph start-up'] = stage_times(time.perf_counter() - t0, 0.0,
+                                                  time.perf_counter() - t0)
+            walls['identification'] = _run_stage(graph, 'identification', 1, idents, bag_dir,
+                                                 starts)
+            walls['closed loop'] = _run_stage(graph, 'closed loop', 2, loops, bag_dir, starts)
         finally:
+            graph.close()
             orch.close()
     # 3. Fitting, 4. model analysis, 5. report: no graph needed.
     page = analyse_campaign(run_dir, bag_dir, params, profile, idents, loops, walls, t_all,
-                            echo=_progress)
+                            starts, echo=_progress)
     print(f'\nreport: {page.resolve()}\nbags: {bag_dir.resolve()}')
     return 0
 

@@ -37,8 +37,10 @@ from hydropump_sim.schema import check_all, ParamError, read_params_file, specs_
 from . import bridge, entry
 from .conversions import ClockWriter, stamp, to_ns
 
-FLOAT_TOPICS = ('line_flow', 'pump_flow', 'load_flow', 'solenoid_current')
-PRESSURE_TOPICS = ('line_pressure', 'load_pressure', 'actuator_pressure')
+# What the laws read: the flow signal (line_flow or pump_flow), the current (bumpless starts)
+# and the two pressures of the margin. Every sample costs an executor callback, so nothing
+# more is subscribed.
+PRESSURE_TOPICS = ('line_pressure', 'load_pressure')
 
 
 def all_specs():
@@ -90,7 +92,7 @@ class ControllerNode(bridge.ExplainedParameters, LifecycleNode):
         latest = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                             history=HistoryPolicy.KEEP_LAST)
         sub = self.create_subscription
-        for topic in FLOAT_TOPICS:
+        for topic in (cfg.controller.flow_signal, 'solenoid_current'):
             self._entities.append(sub(Float64, topic, lambda m, info, t=topic: self._publish(
                 self.sup.measurement(t, m.data, source_ns=info['source_timestamp'])), latest))
         for topic in PRESSURE_TOPICS:

@@ -151,14 +151,18 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         pubs = [self._pub_js, *self._pub_p.values(), *self._pub_f.values()]
         want = self.runner.cfg.wait_subscribers
         end = time.monotonic() + limit
-        while time.monotonic() < end:
-            if all(p.get_subscription_count() >= max(
-                    want, len(self.get_subscriptions_info_by_topic(p.topic_name)))
-                   for p in pubs):
+        while True:
+            short = {p.topic_name: (p.get_subscription_count(), max(
+                want, len(self.get_subscriptions_info_by_topic(p.topic_name)))) for p in pubs}
+            short = {k: v for k, v in short.items() if v[0] < v[1]}
+            if not short:
                 return
+            if time.monotonic() > end:
+                break
             time.sleep(0.01)
-        self.get_logger().warn(f'running on before every subscriber was matched (waited '
-                               f'{limit:g} s for {want} per measurement topic)')
+        self.get_logger().warn(
+            f'running on before every subscriber was matched (waited {limit:g} s): ' + ', '.join(
+                f'{k} {n} of {m}' for k, (n, m) in short.items()))
 
     # ---- the stepping thread -------------------------------------------------------------
 
