@@ -300,3 +300,24 @@ def test_a_live_algorithm_switch_is_bumpless(ctrl_config, params):
     assert max(abs(o.command - before) for o in outs) < 1e-3
     with pytest.raises(ParamError, match='make_controller builds the other one'):
         sup.ctrl.set_config({'controller.algorithm': 'emc'})
+
+
+def test_a_restart_after_a_reset_ignores_the_current_from_before_it(ctrl_config, params):
+    """A persistent graph between two experiments: the controller is restarted (lifecycle),
+    the simulator reset to a new equilibrium whose samples come at the next instant, without
+    the current (published once the command is in). The law restarts from the new flow, not
+    from the current of the previous experiment."""
+    sup = Supervisor(ctrl_config, clock=Clock(), log=lambda *a: None)
+    sup.activate()
+    q_old, q_new = 0.7 * params.Q_max, 0.3 * params.Q_max
+    assert sup.set_reference(q_old) is None
+    for k in range(50):
+        _feed(sup, k, q_old)
+        sup.measurement('solenoid_current', sup.ctrl._pump.current(q_old),
+                        source_ns=10 ** 12 + 1000 * k + 20)
+    sup.deactivate()
+    assert sup.set_parameters({'reference.flow': q_new}) is None
+    sup.activate()
+    outs = _feed(sup, 55, q_new)   # the reset state, at the next instant
+    assert len(outs) == 1
+    assert outs[0].command == pytest.approx(sup.ctrl._pump.current(q_new), abs=2e-3)

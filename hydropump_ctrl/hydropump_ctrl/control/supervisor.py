@@ -344,7 +344,13 @@ class Supervisor:
                 except (ParamError, ValueError) as exc:
                     self._log('error', f'parameter change not applied: {exc}')
         if self._needs_reset:
-            self.ctrl.reset(None, dict(self._meas))
+            # From the samples of this instant only: a current left from before a reset (the
+            # simulator publishes it once the command of the instant is in) is not the
+            # present one, and the law then starts from the measured flow (eq. 11).
+            meas = {k: v for k, v in self._meas.items()
+                    if k != 'solenoid_current' or not self.time.present
+                    or self._fresh(k, stamp_ns)}
+            self.ctrl.reset(None, meas)
             self._needs_reset = False
         try:
             u = self.ctrl.update(stamp_ns * 1e-9, dt, self._meas)
