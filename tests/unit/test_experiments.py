@@ -28,11 +28,20 @@ def test_experiments_name_their_runs_and_bags(params, tmp_path):
     idents = campaign.identification_experiments(params, 9, dwell=0.5, levels=4)
     assert [e.name for e in idents] == [f'ident_{i}' for i in range(1, 10)]
     assert len({e.sim['sensors.seed'] for e in idents}) == 9
-    assert {e.sim['line.P_u'] for e in idents} == {8.0e6, 1.2e7, 1.6e7}
+    # The paper's protocol: one operating point (the nominal load), growing flow only, levels
+    # and step sizes differing, inside the 0..100 % regulating range.
+    assert {e.sim['line.P_u'] for e in idents} == {params.line.P_u}
+    assert len({(e.ctrl['excitation.levels_min'], e.ctrl['excitation.levels_max'])
+                for e in idents}) == 9
+    assert all(e.ctrl['excitation.direction'] == 'up' for e in idents)
+    assert all(0 < e.ctrl['excitation.levels_min'] < e.ctrl['excitation.levels_max'] < 100
+               for e in idents)
     assert all(e.duration == 2.0 and e.topics == campaign.IDENT_TOPICS for e in idents)
     loops = campaign.closed_loop_experiments(params, ('emc',))
     assert [e.name for e in loops] == ['emc_flow_step', 'emc_aperture_step', 'emc_margin_step']
-    assert loops[1].scenario == {'aperture': {'steps': [[0.0, 0.5], [0.5, 0.4]]}}
+    assert loops[1].sim['line.xi_u'] == 0.5
+    assert loops[1].events == [(0.5, 'simulator', {'line.xi_u': 0.4})]
+    assert all(e.preroll > 0 for e in loops)
     assert loops[0].bag(tmp_path) == tmp_path / 'emc_flow_step'
 
 
@@ -113,7 +122,13 @@ def test_tables_put_the_paper_beside_the_run():
 
 def test_summary_leaves_out_the_traces_and_the_page_stands_alone(tmp_path):
     loops = {'emc_margin_step': {'rise_s': 0.1, 'y': (np.zeros(2), np.ones(2))}}
-    s = report.summary(_Ident(), TRUTH, loops, {'total': 1.0})
+    stages = {'identification': campaign.stage_times(10.0, 36.0, 1.0),
+              'total': campaign.stage_times(20.0, 36.0, 4.0)}
+    s = report.summary(_Ident(), TRUTH, loops, stages)
+    assert s['wall_time_s'] == {'identification': 10.0, 'total': 20.0}
+    # The stage table: simulated and wall time, and the overhead as a share of the wall.
+    assert report.stage_rows(stages) == [['identification', '36', '10.0', '10'],
+                                         ['total', '36', '20.0', '20']]
     assert s['closed_loop'] == {'emc_margin_step': {'rise_s': 0.1}}
     assert s['identification']['sets'] == 3 and s['plant'] == TRUTH
     page = report.write_html(tmp_path, [('A & B', '<p>x</p>')])

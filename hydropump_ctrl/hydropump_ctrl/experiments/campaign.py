@@ -57,6 +57,9 @@ class Experiment:
         Topics the experiment needs recorded.
     events : list
         ``(t, node, {param: value})``: parameters set on a node ``t`` seconds after the start.
+    preroll : float
+        Simulated time [s] run before the start and not recorded, for a closed loop to settle
+        on its initial reference.
     """
 
     name: str
@@ -66,6 +69,7 @@ class Experiment:
     ctrl: dict
     topics: list
     events: list = field(default_factory=list)
+    preroll: float = 0.0
 
     def bag(self, folder: str | Path) -> Path:
         """The run's bag in ``folder``: named after the experiment."""
@@ -110,11 +114,14 @@ def identification_experiments(params: Params, n: int = 9, dwell: float = 1.0,
 
 
 def closed_loop_experiments(params: Params, algorithms: Sequence[str] = ('emc', 'pi'),
-                            t_step: float = 0.5, duration: float = 1.5) -> list[Experiment]:
+                            t_step: float = 0.5, duration: float = 1.5,
+                            preroll: float = 0.5) -> list[Experiment]:
     """The three judged scenarios for each algorithm: a 30 -> 70 % flow step, a load
     aperture step 0.5 -> 0.4 at a 25 bar margin, and a margin set-point step 20 -> 25 bar.
     Each starts settled: the plant at the equilibrium of its initial reference (trimmed), the
-    controller restarting bumplessly from it, so that EMC and PI are compared on the step."""
+    controller restarting bumplessly from it, and ``preroll`` seconds, not recorded, for the
+    loop to settle on the reference (the trim knows neither the dither's static offset nor
+    the embedded model's), so that EMC and PI are compared on the step alone."""
     q30, q70 = 0.3 * params.Q_max, 0.7 * params.Q_max
     out = []
     for alg in algorithms:
@@ -123,16 +130,19 @@ def closed_loop_experiments(params: Params, algorithms: Sequence[str] = ('emc', 
             Experiment(f'{alg}_flow_step', f'{alg.upper()}: flow step 30 -> 70 %', duration,
                        _operating_point(params, trim_current(params, flow=q30)),
                        {**base, 'controller.mode': 'flow', 'reference.flow': q30},
-                       LOOP_TOPICS, [(t_step, 'controller', {'reference.flow': q70})]),
+                       LOOP_TOPICS, [(t_step, 'controller', {'reference.flow': q70})],
+                       preroll=preroll),
             Experiment(f'{alg}_aperture_step', f'{alg.upper()}: aperture 0.5 -> 0.4 at 25 bar',
                        duration, _operating_point(params, trim_current(params, margin=2.5e6),
                                                   **{'line.xi_u': 0.5}),
                        {**base, 'controller.mode': 'margin', 'reference.margin': 2.5e6},
-                       LOOP_TOPICS, [(t_step, 'simulator', {'line.xi_u': 0.4})]),
+                       LOOP_TOPICS, [(t_step, 'simulator', {'line.xi_u': 0.4})],
+                       preroll=preroll),
             Experiment(f'{alg}_margin_step', f'{alg.upper()}: margin 20 -> 25 bar', duration,
                        _operating_point(params, trim_current(params, margin=2.0e6)),
                        {**base, 'controller.mode': 'margin', 'reference.margin': 2.0e6},
-                       LOOP_TOPICS, [(t_step, 'controller', {'reference.margin': 2.5e6})]),
+                       LOOP_TOPICS, [(t_step, 'controller', {'reference.margin': 2.5e6})],
+                       preroll=preroll),
         ]
     return out
 
@@ -242,10 +252,12 @@ def loop_figures(params: Params, exp: Experiment, rec: Recording, t_step: float 
         y1 = next((v['reference.margin'] for _, _, v in exp.events
                    if 'reference.margin' in v), y0)
         scale, unit, band = 1e-5, 'bar', 0.5e5
-    # Settled before the step: the output's mean error just before it [% of y0], over 0.1 s
-    # of the true flow, or 0.3 s of the measured margin (to average the pressure sensors'
-    # noise below the 0.2 % it is judged by).
-    window = 0.1 if exp.ctrl['controller.mode'] == 'flow' else 0.3
+    # Settled before the step: the output's mean error over the 0.5 s before it [% of y0]
+    # (the pre-roll settled the loop before the record). The window averages out what the
+    # sensors' noise does: the pressure noise on the measured margin, and the wander that the
+    # flow sensor's noise drives through a flow loop (0.19-0.25 % std of 0.3 s means at 30 %
+    # flow under the bench profile, for either law).
+    window = 0.5
     pre = (t >= t_step - window) & (t < t_step)
     pre_pct = float(100.0 * abs(np.mean(y[pre]) - y0) / abs(y0)) if pre.any() else np.nan
     sel = t >= t_step - 0.1

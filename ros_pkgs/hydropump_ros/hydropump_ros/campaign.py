@@ -220,9 +220,8 @@ class Graph:
         orch.set_params('controller', exp.ctrl)
         orch.set_params('simulator', exp.sim)
         orch.set_params('recorder', {'output': str(bag)})
-        start = orch.call(Trigger, 'recorder/start', Trigger.Request())
-        if not start.success:
-            raise DemoError(f'the recorder could not open {bag}: {start.message}')
+        if not exp.preroll:
+            self._open(bag)
         self._lifecycle(Transition.TRANSITION_ACTIVATE)
         before = orch.t
         if not orch.call(Trigger, 'simulator/reset', Trigger.Request()).success:
@@ -232,6 +231,10 @@ class Graph:
         else:
             orch.spin_until(lambda: orch.t > before, 60, f'the reset of {exp.name}')
             t0 = orch.t
+        if exp.preroll:  # run it, then open the bag: the start is settled
+            t0 += exp.preroll
+            self._run_to(t0, exp)
+            self._open(bag)
         for t, node, values in sorted(exp.events, key=lambda e: e[0]):
             self._run_to(t0 + float(t), exp)
             orch.set_params(node, values)
@@ -243,6 +246,12 @@ class Graph:
             raise DemoError(f'the recorder did not close {bag}: see '
                             f'{self.log_dir / "recorder.log"}')
         return t0
+
+    def _open(self, bag: Path) -> None:
+        from std_srvs.srv import Trigger
+        start = self.orch.call(Trigger, 'recorder/start', Trigger.Request())
+        if not start.success:
+            raise DemoError(f'the recorder could not open {bag}: {start.message}')
 
     def _run_to(self, t: float, exp: Experiment) -> None:
         """Let the simulator run to simulation time ``t`` [s] and pause there."""
