@@ -292,7 +292,12 @@ def main(argv=None) -> int:
                     help='a short campaign: three identification experiments, EMC only')
     ap.add_argument('--sets', type=int, default=None, help='identification experiments')
     ap.add_argument('--dwell', type=float, default=None, help='stair duration [s]')
+    ap.add_argument('--jobs', type=int, default=1, metavar='N',
+                    help='run the experiments on N graphs at once, each in its own ROS '
+                         'domain (default 1: one graph)')
     args = ap.parse_args(argv)
+    if args.jobs < 1:
+        ap.error(f'--jobs {args.jobs}: give 1 or more graphs')
     try:
         return run(args)
     except HydropumpError as exc:
@@ -305,30 +310,91 @@ def main(argv=None) -> int:
 
 
 def _run_stage(graph: Graph, what: str, stage: int, exps: list[Experiment], bag_dir: Path,
-               starts: dict) -> dict:
+               starts: dict, tag: str = '') -> dict:
     """Run ``exps`` one after the other through ``graph``, with a progress line each; the
     stage's times (:func:`stage_times`)."""
     t0, running0 = time.perf_counter(), graph.running_s
     for i, exp in enumerate(exps, 1):
         t1 = time.perf_counter()
-        _progress(f'[{stage}/5 {what} {i}/{len(exps)}] {exp.label} ...')
+        _progress(f'{tag}[{stage}/5 {what} {i}/{len(exps)}] {exp.label} ...')
         starts[exp.name] = graph.run(exp, exp.bag(bag_dir))
-        _progress(f'      {exp.duration:g} s simulated in {time.perf_counter() - t1:.1f} s'
-                  + (f' -> {exp.bag(bag_dir)}' if stage == 1 else ''))
+        _progress(f'{tag}      {exp.duration:g} s simulated in '
+                  f'{time.perf_counter() - t1:.1f} s -> {exp.bag(bag_dir)}')
     wall = time.perf_counter() - t0
     return stage_times(wall, sum(e.duration for e in exps), wall - (graph.running_s - running0))
 
 
-def run(args) -> int:
+def _domain():
+    """A ROS domain of this host that no other graph of the domain coordinator holds."""
     from domain_coordinator import domain_id
+    first = random.randrange(100)
+    return domain_id(lambda s=[first]: (s.__setitem__(0, s[0] + 1) or s[0] % 100 + 1))
 
+
+def run_graph(stages: dict[str, list[Experiment]], run_dir: Path, log_dir: Path,
+              profile_path: Path, tag: str = '') -> tuple[dict, dict]:
+    """One graph in a ROS domain of its own: start it, run each stage's experiments into
+    ``run_dir/bags``, stop it. Returns the stage times and each experiment's start time."""
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    walls, starts = {}, {}
+    with _domain() as did:
+        os.environ['ROS_DOMAIN_ID'] = str(did)
+        orch = Orchestrator()
+        graph = Graph(orch, log_dir, profile_path, LOOP_TOPICS)
+        try:
+            t0 = time.perf_counter()
+            _progress(f'{tag}[0/5 graph] simulator, controller and recorder (ROS domain {did})'
+                      ' ...')
+            ready = graph.start()
+            _progress(f'{tag}      ready in ' + ', '.join(f'{k} {v:.1f} s'
+                                                         for k, v in ready.items()))
+            wall = time.perf_counter() - t0
+            walls['graph start-up'] = stage_times(wall, 0.0, wall)
+            for i, (what, exps) in enumerate(stages.items(), 1):
+                walls[what] = _run_stage(graph, what, i, exps, run_dir / 'bags', starts, tag)
+        finally:
+            graph.close()
+            orch.close()
+    return walls, starts
+
+
+def _split(exps: list[Experiment], n: int) -> list[list[Experiment]]:
+    """``n`` groups of about equal simulated time (longest first to the lightest group)."""
+    groups: list[list[Experiment]] = [[] for _ in range(n)]
+    for exp in sorted(exps, key=lambda e: -(e.duration + e.preroll)):
+        min(groups, key=lambda g: sum(e.duration + e.preroll for e in g)).append(exp)
+    return [g for g in groups if g]
+
+
+def _run_jobs(stages: dict, run_dir: Path, profile_path: Path, jobs: int) -> tuple[dict, dict]:
+    """The experiments over ``jobs`` graphs at once, each in its own process and domain."""
+    from concurrent.futures import ProcessPoolExecutor
+    import multiprocessing
+    exps = [e for group in stages.values() for e in group]
+    groups = _split(exps, jobs)
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(len(groups), mp_context=multiprocessing.get_context('spawn')) \
+            as pool:
+        futures = [pool.submit(run_graph, {'experiments': g}, run_dir,
+                               run_dir / 'logs' / f'graph{k + 1}', profile_path,
+                               f'[graph {k + 1}] ') for k, g in enumerate(groups)]
+        results = [f.result() for f in futures]
+    wall = time.perf_counter() - t0
+    starts = {k: v for _, st in results for k, v in st.items()}
+    # Orchestration overhead of parallel graphs: the wall time the slowest graph was not
+    # stepping (start-up included).
+    idle = max(sum(v['overhead_s'] for v in w.values()) for w, _ in results)
+    name = f'experiments ({len(groups)} graphs at once)'
+    return {name: stage_times(wall, sum(e.duration for e in exps), min(idle, wall))}, starts
+
+
+def run(args) -> int:
     from hydropump_sim.params import default_params_path, load_params
     from hydropump_sim.sensors import load_profile
     t_all = time.perf_counter()
     run_dir = Path(args.out) if args.out else Path('out') / datetime.now().strftime(
         '%Y%m%d-%H%M%S')
     run_dir.mkdir(parents=True, exist_ok=True)
-    bag_dir = run_dir / 'bags'
     params = load_params(default_params_path())
     profile_path = default_params_path().with_name('bench.yaml')
     profile = load_profile(profile_path)
@@ -336,33 +402,18 @@ def run(args) -> int:
     dwell = args.dwell or (0.6 if args.quick else 1.0)
     idents = identification_experiments(params, n_sets, dwell)
     loops = closed_loop_experiments(params, ('emc',) if args.quick else ('emc', 'pi'))
-    walls, starts = {}, {}
     _progress(f'run folder: {run_dir}')
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    first = random.randrange(100)
-    with domain_id(lambda s=[first]: (s.__setitem__(0, s[0] + 1) or s[0] % 100 + 1)) as did:
-        os.environ['ROS_DOMAIN_ID'] = str(did)
-        orch = Orchestrator()
-        graph = Graph(orch, run_dir / 'logs', profile_path, LOOP_TOPICS)
-        try:
-            # 1. The identification campaign, then 2. the closed loop, on one graph; the
-            # stages are numbered in the order they run.
-            t0 = time.perf_counter()
-            _progress('[0/5 graph] simulator, controller and recorder ...')
-            ready = graph.start()
-            _progress('      ready in ' + ', '.join(f'{k} {v:.1f} s' for k, v in ready.items()))
-            walls['graph start-up'] = stage_times(time.perf_counter() - t0, 0.0,
-                                                  time.perf_counter() - t0)
-            walls['identification'] = _run_stage(graph, 'identification', 1, idents, bag_dir,
-                                                 starts)
-            walls['closed loop'] = _run_stage(graph, 'closed loop', 2, loops, bag_dir, starts)
-        finally:
-            graph.close()
-            orch.close()
+    # 1. The identification campaign, then 2. the closed loop; the stages are numbered in
+    # the order they run.
+    stages = {'identification': idents, 'closed loop': loops}
+    if args.jobs > 1:
+        walls, starts = _run_jobs(stages, run_dir, profile_path, args.jobs)
+    else:
+        walls, starts = run_graph(stages, run_dir, run_dir / 'logs', profile_path)
     # 3. Fitting, 4. model analysis, 5. report: no graph needed.
-    page = analyse_campaign(run_dir, bag_dir, params, profile, idents, loops, walls, t_all,
-                            starts, echo=_progress)
-    print(f'\nreport: {page.resolve()}\nbags: {bag_dir.resolve()}')
+    page = analyse_campaign(run_dir, run_dir / 'bags', params, profile, idents, loops, walls,
+                            t_all, starts, echo=_progress)
+    print(f'\nreport: {page.resolve()}\nbags: {(run_dir / "bags").resolve()}')
     return 0
 
 
