@@ -1,5 +1,5 @@
 """The target table of docs/control.md on the fine-model simulator with the bench sensors
-(55 ms flow delay, noise, quantisation, 150 Hz dither), fixed seeds, controllers designed from
+(55 ms flow delay, noise, quantisation, 400 Hz dither), fixed seeds, controllers designed from
 the simplified model and eq. 19 only (config/controller.yaml)."""
 
 from pathlib import Path
@@ -24,7 +24,7 @@ def FS(params):
 
 def test_bench_profile_is_the_judged_one(bench, cfg):
     assert bench.spec('line_flow').delay == pytest.approx(0.055)
-    assert bench.plant_overrides['input.dither_freq'] == pytest.approx(150.0)
+    assert bench.plant_overrides['input.dither_freq'] == pytest.approx(400.0)
     # The design knows only eq. 19's delay, as the bench does: 11 periods at 200 Hz.
     assert cfg.model.t_d == pytest.approx(0.055) and cfg.controller.update_rate == 200.0
 

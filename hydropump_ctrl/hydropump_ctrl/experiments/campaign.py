@@ -188,7 +188,8 @@ def plant_truth(params: Params, profile: SensorProfile, ident) -> dict:
         recs.append(Recording(res.t, {'solenoid_current': held(res.t), 'line_flow': res.q_l},
                               name=f'{rec.name} twin'))
     twin = fit_recordings(recs, params=params, joint=False)
-    return {'G0': twin.G0, 'tau': twin.tau, 'td_plant': twin.td,
+    return {'G0': twin.G0, 'tau': twin.tau, 'tau_std': twin.pooled.std['tau'],
+            'td_plant': twin.td,
             'td_configured': profile.spec('line_flow').delay,
             'tau_nominal': nominal_tau(params)}
 
@@ -283,7 +284,7 @@ def stage_times(wall: float, simulated: float = 0.0, overhead: float = 0.0) -> d
 def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: SensorProfile,
                      idents: Sequence[Experiment], loops: Sequence[Experiment], walls: dict,
                      started: float, starts: dict | None = None,
-                     echo: Callable[[str], None] = print) -> Path:
+                     echo: Callable[[str], None] = print, maps=None) -> Path:
     """Stages 2, 4 and 5 of the demo on its bags: fit, model analysis, report.
 
     Parameters
@@ -306,6 +307,9 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
         Simulation time [s] each experiment started at, by name (default 0).
     echo : callable
         Where progress lines and tables go (one string a call).
+    maps : Future, optional
+        :func:`.maps.draw_figures` running beside the graph into ``run_dir/figures``;
+        waited for before the page is written (without it the map figures are drawn here).
 
     Returns
     -------
@@ -314,16 +318,18 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
     """
     from hydropump_sim import analysis
 
-    from ..ident import fit_bags, format_table, read_recording, write_report
+    from ..ident import fit_bags, fit_recordings, format_table, read_recording, write_report
     from . import plots, report
+    from .maps import draw_figures
     t0 = time.perf_counter()
     echo('[3/5 fitting] eq. 19 on the identification bags ...')
     ident = fit_bags([exp.bag(bag_dir) for exp in idents], params=params, progress=None)
     fit_paths = write_report(ident, run_dir / 'identification', params=params)
     truth = plant_truth(params, profile, ident)
+    paper_fit = fit_recordings(ident.recordings, params=params, method='paper', joint=False)
     walls['fitting'] = stage_times(time.perf_counter() - t0)
     echo(format_table(ident))
-    rows = report.identification_rows(ident, truth)
+    rows = report.identification_rows(ident, truth, paper_fit)
     echo(report.text_table(['', 'G0 [%/range]', 'tau [ms]', 't_d [ms]'], rows))
     starts = starts or {}
     loop_results = {exp.name: loop_figures(params, exp, read_recording(exp.bag(bag_dir)),
@@ -343,6 +349,10 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
     plots.plot_bode_identified(params, ident, figs / 'bode.png')
     hyst = plots.plot_hysteresis(params, figs / 'hysteresis.png')
     plots.plot_closed_loop(loop_results, figs / 'emc_vs_pi.png')
+    if maps is not None:
+        maps.result()
+    else:
+        draw_figures(params, figs)
     walls['report'] = stage_times(time.perf_counter() - t0)
     walls['total'] = stage_times(time.perf_counter() - started,
                                  sum(v['simulated_s'] for v in walls.values()),

@@ -127,3 +127,28 @@ def plot_dither_sensitivity(s: dict, path, resonance: float | None = None) -> No
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
+
+
+#: Grids of the figures: the docs' (fine) and the demo report's (coarse, about 10 s).
+GRIDS = {
+    'fine': {'load_pressures': [8.0e6, 1.2e7, 1.6e7], 'displacements': [0.2, 0.35, 0.5, 0.65, 0.8],
+             'amplitudes': [0.0, 0.004, 0.008, 0.012],
+             'frequencies': [80.0, 120.0, 140.0, 153.0, 170.0, 200.0, 300.0]},
+    'coarse': {'load_pressures': [8.0e6, 1.2e7, 1.6e7], 'displacements': [0.25, 0.5, 0.75],
+               'amplitudes': [0.0, 0.002, 0.004, 0.008],
+               'frequencies': [80.0, 120.0, 153.0, 200.0, 300.0, 400.0]},
+}
+
+
+def draw_figures(params: Params, folder, grid: str = 'coarse') -> tuple[dict, dict]:
+    """``operating_map.png`` and ``dither_sensitivity.png`` in ``folder``, on one of
+    :data:`GRIDS`; the two results."""
+    from pathlib import Path
+    g = GRIDS[grid]
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    m = operating_map(params, g['load_pressures'], g['displacements'])
+    plot_operating_map(m, folder / 'operating_map.png')
+    s = dither_sensitivity(params, g['amplitudes'], g['frequencies'])
+    plot_dither_sensitivity(s, folder / 'dither_sensitivity.png', spool_resonance(params))
+    return m, s

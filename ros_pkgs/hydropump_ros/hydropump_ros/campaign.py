@@ -403,16 +403,24 @@ def run(args) -> int:
     idents = identification_experiments(params, n_sets, dwell)
     loops = closed_loop_experiments(params, ('emc',) if args.quick else ('emc', 'pi'))
     _progress(f'run folder: {run_dir}')
-    # 1. The identification campaign, then 2. the closed loop; the stages are numbered in
-    # the order they run.
-    stages = {'identification': idents, 'closed loop': loops}
-    if args.jobs > 1:
-        walls, starts = _run_jobs(stages, run_dir, profile_path, args.jobs)
-    else:
-        walls, starts = run_graph(stages, run_dir, run_dir / 'logs', profile_path)
-    # 3. Fitting, 4. model analysis, 5. report: no graph needed.
-    page = analyse_campaign(run_dir, run_dir / 'bags', params, profile, idents, loops, walls,
-                            t_all, starts, echo=_progress)
+    # The report's operating map and dither figures need no graph: drawn in a process of
+    # their own while the graph runs (it leaves most of a core idle, waiting on messages).
+    from concurrent.futures import ProcessPoolExecutor
+    import multiprocessing
+
+    from hydropump_ctrl.experiments.maps import draw_figures
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context('spawn')) as pool:
+        maps = pool.submit(draw_figures, params, run_dir / 'figures')
+        # 1. The identification campaign, then 2. the closed loop; the stages are numbered
+        # in the order they run.
+        stages = {'identification': idents, 'closed loop': loops}
+        if args.jobs > 1:
+            walls, starts = _run_jobs(stages, run_dir, profile_path, args.jobs)
+        else:
+            walls, starts = run_graph(stages, run_dir, run_dir / 'logs', profile_path)
+        # 3. Fitting, 4. model analysis, 5. report: no graph needed.
+        page = analyse_campaign(run_dir, run_dir / 'bags', params, profile, idents, loops,
+                                walls, t_all, starts, echo=_progress, maps=maps)
     print(f'\nreport: {page.resolve()}\nbags: {(run_dir / "bags").resolve()}')
     return 0
 
