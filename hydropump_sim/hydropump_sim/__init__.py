@@ -10,25 +10,44 @@ Public API (stable):
   :func:`singular_perturbation_check` - linear analysis (eqs. 14-18, section IV);
 - :class:`Simulator` - fixed-increment stepper for the ROS simulator.
 
-Pure Python (numpy, scipy, numba): nothing here imports ROS. The linear-analysis names load
-on first use, so a node that only steps the model does not pay for python-control (a second
-per process).
+Pure Python (numpy, scipy, numba): nothing here imports ROS. The model and the linear
+analysis load on first use, so a node that only reads parameters (the controller, the
+recorder) does not pay for numba and scipy, nor a node that only steps the model for
+python-control (about a second each per process).
 """
 
 import importlib
+import sys
+import types
 
 from .params import load_params, ParamError, Params
-from .simulate import IntegrationError, IntegratorConfig, SimResult, simulate, Simulator
-from .trim import Equilibrium, equilibrium, TrimError
 
-_LAZY = {name: 'linear' for name in ('linearize', 'modal_analysis', 'paper_linear',
-                                     'singular_perturbation_check', 'transfer_matrix')}
+_LAZY = {**{name: 'linear' for name in ('linearize', 'modal_analysis', 'paper_linear',
+                                        'singular_perturbation_check', 'transfer_matrix')},
+         **{name: 'simulate' for name in ('IntegrationError', 'IntegratorConfig', 'SimResult',
+                                          'Simulator')},
+         **{name: 'trim' for name in ('Equilibrium', 'equilibrium', 'TrimError')}}
 
 __all__ = [
     'Equilibrium', 'IntegrationError', 'IntegratorConfig', 'ParamError', 'Params', 'SimResult',
     'Simulator', 'TrimError', 'equilibrium', 'linearize', 'load_params', 'modal_analysis',
     'paper_linear', 'simulate', 'singular_perturbation_check', 'transfer_matrix',
 ]
+
+
+class _Package(types.ModuleType):
+    # simulate() shares its name with the submodule simulate.py, which the import system sets
+    # on the package when it loads it: the package keeps the function.
+    @property
+    def simulate(self):
+        return importlib.import_module('.simulate', __name__).simulate
+
+    @simulate.setter
+    def simulate(self, value):
+        pass
+
+
+sys.modules[__name__].__class__ = _Package
 
 
 def __getattr__(name):
