@@ -76,11 +76,6 @@ class Controller:
     def config(self) -> ControllerConfig:
         return self._cfg
 
-    @property
-    def command(self) -> float:
-        """The latest absolute current command [A]."""
-        return self._command
-
     def set_config(self, config: ControllerConfig | Mapping[str, Any]) -> None:
         """Apply new parameters at the next update, without a bump.
 

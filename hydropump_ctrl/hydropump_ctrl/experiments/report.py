@@ -84,27 +84,27 @@ def report_sections(ident, truth, rows, loops, modal, analysis_text, hyst, walls
     return [
         ('Identification (section V, eq. 19): the paper against this run',
          _table(['', 'G0 [% per range]', 'tau [ms]', 't_d [ms]'], rows)
-         + '<p>The paper\'s protocol: nine growing-flow current staircases at the nominal '
+         + "<p>The paper's protocol: nine growing-flow current staircases at the nominal "
            'operating point (120 bar, aperture 0.5), differing in levels (centred on 45, 50 '
            'and 55 % of displacement), step sizes (5, 10 and 15 %) and noise seeds, through '
            'the real nodes (simulator with the bench profile of config/bench.yaml, controller '
-           'in open loop, recorder), fitted with the robust method and with the paper\'s '
+           "in open loop, recorder), fitted with the robust method and with the paper's "
            'Nelder-Mead. The plant rows show what a perfect fit should find: the fine model '
            'under the same dither without sensors, and the configured delay.</p>'
-           '<p>The spread between sets is mostly the plant\'s: the growing-flow time '
+           "<p>The spread between sets is mostly the plant's: the growing-flow time "
            'constant is S_a (1 + K_c/K_a) / (mu_a sqrt(P_a)) (eq. 14), and the actuator '
            'pressure P_a falls as the plate strokes out, so a staircase centred lower or '
            'with larger steps sees another tau. The noise-free twin of the nine sets shows '
-           'that part alone (its ± above); the sensors\' noise adds the rest. The delay is '
-           'one configured 55 ms for every set here; the paper\'s ±5.5 ms suggests its '
+           "that part alone (its ± above); the sensors' noise adds the rest. The delay is "
+           "one configured 55 ms for every set here; the paper's ±5.5 ms suggests its "
            'acquisition chain varied between sets, which this bench does not model.</p>'
          + _img(Path(fit_paths['fig5'])) + _img(Path(fit_paths['fig6']))),
         ('Bode: fine vs simplified vs identified', _img(figs / 'bode.png')),
         *([('Beyond the paper: the operating map and the dither sensitivity',
             '<p>eq. 19 of the noise-free fine model over load pressure and displacement '
             '(2 % steps, no dither), and the growing-flow time constant against dither '
-            'amplitude and frequency around the spool\'s 153.8 Hz corner (10 % steps at the '
-            'nominal point). A dither below the corner rectifies at the pilot valve\'s '
+            "amplitude and frequency around the spool's 153.8 Hz corner (10 % steps at the "
+            "nominal point). A dither below the corner rectifies at the pilot valve's "
             'kink and shortens tau by about 2 ms per mA; the spool filters it out above.</p>'
             + _img(figs / 'operating_map.png') + _img(figs / 'dither_sensitivity.png'))]
           if (figs / 'operating_map.png').is_file() else []),
