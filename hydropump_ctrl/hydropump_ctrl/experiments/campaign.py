@@ -114,7 +114,7 @@ def identification_experiments(params: Params, n: int = 9, dwell: float = 1.0,
 
 
 def closed_loop_experiments(params: Params, algorithms: Sequence[str] = ('emc', 'pi'),
-                            t_step: float = 0.5, duration: float = 1.5,
+                            t_step: float = 0.5, duration: float = 1.2,
                             preroll: float = 0.5) -> list[Experiment]:
     """The three judged scenarios for each algorithm: a 30 -> 70 % flow step, a load
     aperture step 0.5 -> 0.4 at a 25 bar margin, and a margin set-point step 20 -> 25 bar.
@@ -149,7 +149,8 @@ def closed_loop_experiments(params: Params, algorithms: Sequence[str] = ('emc', 
 
 # ---- the plant's own answer -----------------------------------------------------------------
 
-def plant_truth(params: Params, profile: SensorProfile, ident) -> dict:
+def plant_truth(params: Params, profile: SensorProfile, recordings: Sequence[Recording]
+                ) -> dict:
     """The plant's own eq. 19 under the bench conditions: each experiment replayed on the fine
     model with the commanded current, dither on, no sensor delay or noise, and fitted.
 
@@ -159,22 +160,22 @@ def plant_truth(params: Params, profile: SensorProfile, ident) -> dict:
         Nominal plant; the profile's ``plant_overrides`` (the dither) are applied.
     profile : SensorProfile
         The bench profile of the runs: its dither and its configured line-flow delay.
-    ident : Identification
-        The fit of the runs; its ``recordings`` (one per bag, read once) give the commanded
+    recordings : sequence of Recording
+        The runs (e.g. an identification's ``recordings``, one per bag): their commanded
         current.
 
     Returns
     -------
     dict
-        ``G0``, ``tau``, ``td_plant`` of the twin's fit, ``td_configured`` (the sensor delay)
-        and ``tau_nominal`` (:func:`nominal_tau`).
+        ``G0``, ``tau`` (and ``tau_std``, between the runs), ``td_plant`` of the twin's fit,
+        ``td_configured`` (the sensor delay) and ``tau_nominal`` (:func:`nominal_tau`).
     """
     from hydropump_sim import simulate
 
     from ..ident import fit_recordings
     plant = params.replace(profile.plant_overrides or {})
     recs = []
-    for rec in ident.recordings:
+    for rec in recordings:
         # The command starts with the controller's first update; time from there, in the
         # grid's whole nanoseconds.
         ok = np.isfinite(rec['solenoid_current_cmd'])
@@ -284,7 +285,7 @@ def stage_times(wall: float, simulated: float = 0.0, overhead: float = 0.0) -> d
 def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: SensorProfile,
                      idents: Sequence[Experiment], loops: Sequence[Experiment], walls: dict,
                      started: float, starts: dict | None = None,
-                     echo: Callable[[str], None] = print, maps=None) -> Path:
+                     echo: Callable[[str], None] = print, pool=None) -> Path:
     """Stages 2, 4 and 5 of the demo on its bags: fit, model analysis, report.
 
     Parameters
@@ -307,9 +308,9 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
         Simulation time [s] each experiment started at, by name (default 0).
     echo : callable
         Where progress lines and tables go (one string a call).
-    maps : Future, optional
-        :func:`.maps.draw_figures` running beside the graph into ``run_dir/figures``;
-        waited for before the page is written (without it the map figures are drawn here).
+    pool : concurrent.futures.Executor, optional
+        Where the work that waits for nothing here runs beside the fit (the operating map
+        and dither figures, the plant's twin); without one, all of it runs in turn.
 
     Returns
     -------
@@ -322,10 +323,20 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
     from . import plots, report
     from .maps import draw_figures
     t0 = time.perf_counter()
+    figs = run_dir / 'figures'
+    figs.mkdir(parents=True, exist_ok=True)
+
+    def later(fn, *args):
+        if pool is None:
+            value = fn(*args)
+            return lambda: value
+        return pool.submit(fn, *args).result
+    maps = later(draw_figures, params, figs)
     echo('[3/5 fitting] eq. 19 on the identification bags ...')
     ident = fit_bags([exp.bag(bag_dir) for exp in idents], params=params, progress=None)
+    truth = later(plant_truth, params, profile, ident.recordings)
     fit_paths = write_report(ident, run_dir / 'identification', params=params)
-    truth = plant_truth(params, profile, ident)
+    truth = truth()
     paper_fit = fit_recordings(ident.recordings, params=params, method='paper', joint=False)
     walls['fitting'] = stage_times(time.perf_counter() - t0)
     echo(format_table(ident))
@@ -343,16 +354,11 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
     walls['model analysis'] = stage_times(time.perf_counter() - t0)
     t0 = time.perf_counter()
     echo('[5/5 report] figures and report.html ...')
-    figs = run_dir / 'figures'
-    figs.mkdir(exist_ok=True)
     analysis.plot_steps(steps, params, figs / 'steps.png')
     plots.plot_bode_identified(params, ident, figs / 'bode.png')
     hyst = plots.plot_hysteresis(params, figs / 'hysteresis.png')
     plots.plot_closed_loop(loop_results, figs / 'emc_vs_pi.png')
-    if maps is not None:
-        maps.result()
-    else:
-        draw_figures(params, figs)
+    maps()
     walls['report'] = stage_times(time.perf_counter() - t0)
     walls['total'] = stage_times(time.perf_counter() - started,
                                  sum(v['simulated_s'] for v in walls.values()),

@@ -399,18 +399,15 @@ def run(args) -> int:
     profile_path = default_params_path().with_name('bench.yaml')
     profile = load_profile(profile_path)
     n_sets = args.sets or (3 if args.quick else 9)
-    dwell = args.dwell or (0.6 if args.quick else 1.0)
+    dwell = args.dwell or (0.6 if args.quick else 0.8)  # s: eight tau a stair
     idents = identification_experiments(params, n_sets, dwell)
     loops = closed_loop_experiments(params, ('emc',) if args.quick else ('emc', 'pi'))
     _progress(f'run folder: {run_dir}')
-    # The report's operating map and dither figures need no graph: drawn in a process of
-    # their own while the graph runs (it leaves most of a core idle, waiting on messages).
     from concurrent.futures import ProcessPoolExecutor
     import multiprocessing
-
-    from hydropump_ctrl.experiments.maps import draw_figures
-    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context('spawn')) as pool:
-        maps = pool.submit(draw_figures, params, run_dir / 'figures')
+    # Two processes for the report's work that needs neither the graph nor the fit (the
+    # operating map and dither figures, the plant's twin): they run beside the fit.
+    with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context('spawn')) as pool:
         # 1. The identification campaign, then 2. the closed loop; the stages are numbered
         # in the order they run.
         stages = {'identification': idents, 'closed loop': loops}
@@ -420,7 +417,7 @@ def run(args) -> int:
             walls, starts = run_graph(stages, run_dir, run_dir / 'logs', profile_path)
         # 3. Fitting, 4. model analysis, 5. report: no graph needed.
         page = analyse_campaign(run_dir, run_dir / 'bags', params, profile, idents, loops,
-                                walls, t_all, starts, echo=_progress, maps=maps)
+                                walls, t_all, starts, echo=_progress, pool=pool)
     print(f'\nreport: {page.resolve()}\nbags: {(run_dir / "bags").resolve()}')
     return 0
 

@@ -19,6 +19,7 @@ mode and references are live parameters. ``autostart`` configures and activates 
 from __future__ import annotations
 
 import math
+import threading
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.clock import Clock, ClockType
@@ -68,10 +69,25 @@ class ControllerNode(bridge.ExplainedParameters, LifecycleNode):
         self.schema_specs = d.specs
         self.autostart = node_cfg.autostart
         self.sup = Supervisor(law, node_cfg.watchdog, log=self._log)
+        # The measurements and /clock come in on an executor of their own (what a lock-step
+        # exchange waits for); timers, services and parameters on the node's. The lock keeps
+        # the supervisor's calls from the two threads whole.
+        self._lock = threading.Lock()
+        self._io = entry.SideExecutor(self)
         self.add_on_set_parameters_callback(
-            lambda params: bridge.result(self.sup.set_parameters(
-                {p.name: p.value for p in params})))
+            lambda params: bridge.result(self._locked(self.sup.set_parameters,
+                                                      {p.name: p.value for p in params})))
         self._entities: list = []
+        self._io_entities: list = []
+
+    def _locked(self, fn, *args, **kw):
+        with self._lock:
+            return fn(*args, **kw)
+
+    def _run(self, fn, *args, **kw) -> None:
+        """A supervisor call under the lock; its output published."""
+        with self._lock:
+            self._publish(fn(*args, **kw))
 
     def _log(self, level: str, text: str) -> None:
         entry.log(self.get_logger(), level, text)
@@ -91,28 +107,28 @@ class ControllerNode(bridge.ExplainedParameters, LifecycleNode):
         # The latest sample of each measurement is what an update needs.
         latest = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                             history=HistoryPolicy.KEEP_LAST)
-        sub = self.create_subscription
+        sub, sup = self._io.subscribe, self.sup
         for topic in (cfg.controller.flow_signal, 'solenoid_current'):
-            self._entities.append(sub(Float64, topic, lambda m, info, t=topic: self._publish(
-                self.sup.measurement(t, m.data, source_ns=info['source_timestamp'])), latest))
+            self._io_entities.append(sub(Float64, topic, lambda m, info, t=topic: self._run(
+                sup.measurement, t, m.data, source_ns=info['source_timestamp']), latest))
         for topic in PRESSURE_TOPICS:
-            self._entities.append(sub(FluidPressure, topic, lambda m, t=topic: self._publish(
-                self.sup.measurement(t, m.fluid_pressure, stamp_ns=to_ns(m.header.stamp))),
+            self._io_entities.append(sub(FluidPressure, topic, lambda m, t=topic: self._run(
+                sup.measurement, t, m.fluid_pressure, stamp_ns=to_ns(m.header.stamp)),
                 latest))
         writer = ClockWriter(self)
-        self._entities.append(sub(ClockMsg, '/clock', lambda m, info: self._publish(
-            self.sup.clock(to_ns(m.clock), info['source_timestamp'],
-                           info.get('publication_sequence_number'),
-                           writer.of(info['source_timestamp']))),
+        self._io_entities.append(sub(ClockMsg, '/clock', lambda m, info: self._run(
+            sup.clock, to_ns(m.clock), info['source_timestamp'],
+            info.get('publication_sequence_number'), writer.of(info['source_timestamp'])),
             QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)))
-        self._entities.append(sub(Float64, '~/reference', self._on_reference, 10))
+        self._entities.append(self.create_subscription(Float64, '~/reference',
+                                                       self._on_reference, 10))
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         wall = Clock(clock_type=ClockType.SYSTEM_TIME)
         self._timers = [
-            self.create_timer(cfg.period, lambda: self._publish(self.sup.wall_tick(
-                wall.now().nanoseconds, self.count_publishers('/clock'))), clock=steady),
-            self.create_timer(0.05, lambda: self._publish(self.sup.check_watchdog()),
-                              clock=steady),
+            self.create_timer(cfg.period, lambda: self._run(
+                sup.wall_tick, wall.now().nanoseconds, self.count_publishers('/clock')),
+                clock=steady),
+            self.create_timer(0.05, lambda: self._run(sup.check_watchdog), clock=steady),
             self.create_timer(0.1, writer.refresh, clock=steady),
             self.create_timer(1.0, self._publish_diagnostics, clock=steady)]
         self.get_logger().info(f'configured: {cfg.controller.algorithm} in '
@@ -123,11 +139,11 @@ class ControllerNode(bridge.ExplainedParameters, LifecycleNode):
         result = super().on_activate(state)
         self.get_logger().info('active: publishing solenoid_current_cmd')
         # Bumpless start from the measurements, at the first instant that has them all.
-        self._publish(self.sup.activate())
+        self._run(self.sup.activate)
         return result
 
     def on_deactivate(self, state: State) -> TransitionCallbackReturn:
-        self.sup.deactivate()
+        self._locked(self.sup.deactivate)
         return super().on_deactivate(state)
 
     def on_cleanup(self, state: State) -> TransitionCallbackReturn:
@@ -135,27 +151,30 @@ class ControllerNode(bridge.ExplainedParameters, LifecycleNode):
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, state: State) -> TransitionCallbackReturn:
-        self.sup.deactivate()
+        self._locked(self.sup.deactivate)
         return TransitionCallbackReturn.SUCCESS
 
     def _teardown(self) -> None:
+        for s in self._io_entities:
+            self._io.node.destroy_subscription(s)
         for s in self._entities:
             self.destroy_subscription(s)
         for t in getattr(self, '_timers', ()):
             self.destroy_timer(t)
-        self._entities, self._timers = [], []
+        self._entities, self._io_entities, self._timers = [], [], []
         self.destroy_lifecycle_publisher(self._pub_cmd)
         self.destroy_lifecycle_publisher(self._pub_state)
         self.destroy_publisher(self._pub_diag)
 
     def close(self) -> None:
         """Stop commanding before the context goes."""
-        self.sup.deactivate()
+        self._locked(self.sup.deactivate)
+        self._io.close()
 
     # ---- messages ------------------------------------------------------------------------
 
     def _on_reference(self, msg: Float64) -> None:
-        reason = self.sup.set_reference(msg.data)
+        reason = self._locked(self.sup.set_reference, msg.data)
         if reason:
             self.get_logger().warn(f'reference refused: {reason}')
 
@@ -172,7 +191,7 @@ class ControllerNode(bridge.ExplainedParameters, LifecycleNode):
         self._pub_state.publish(msg)
 
     def _publish_diagnostics(self) -> None:
-        d = self.sup.diagnostics()
+        d = self._locked(self.sup.diagnostics)
         bad = d['watchdog'] != 'running' or d['rejected_nan'] or d['rejected_range']
         st = DiagnosticStatus(
             name='controller', hardware_id='hydropump',

@@ -64,8 +64,10 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         self._pub_js = self.create_publisher(JointState, 'joint_states', qos)
         self._pub_i = self.create_publisher(Float64, 'solenoid_current', qos)
         self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self.create_subscription(Float64, 'solenoid_current_cmd',
-                                 lambda m: self.runner.command(m.data), qos)
+        # The command has an executor of its own: what a lock-step exchange waits for.
+        self._io = entry.SideExecutor(self)
+        self._io.subscribe(Float64, 'solenoid_current_cmd',
+                           lambda m: self.runner.command(m.data), qos)
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.create_service(SetBool, '~/pause', self._on_pause)
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -213,6 +215,7 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         self._closing = True
         self.runner.stop()
         self._thread.join(timeout=5.0)
+        self._io.close()
 
     # ---- publishing (stepping thread) ----------------------------------------------------
 
