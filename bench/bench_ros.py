@@ -204,8 +204,11 @@ def main():
                 row(f'lock-step {period * 1e3:g} ms: command exchanges ({n} step(s) each)',
                     exchanges, '1/s'),
                 row(f'lock-step {period * 1e3:g} ms: closed-loop steps', rtf_lock / 1e-3, '1/s'),
+                # The goal is set at 1 ms, one step an exchange; at 5 ms an exchange carries
+                # five steps, and is reported only.
                 row(f'lock-step {period * 1e3:g} ms: exchanges / ping-pong',
-                    exchanges / pp_rate, 'ratio', '>= 0.4', exchanges / pp_rate >= 0.4),
+                    exchanges / pp_rate, 'ratio', '>= 0.5' if n == 1 else '',
+                    exchanges / pp_rate >= 0.5 if n == 1 else None),
             ]
 
         print(f'recorder: {DURATION:g} s of the full topic set at 1 kHz ...', flush=True)

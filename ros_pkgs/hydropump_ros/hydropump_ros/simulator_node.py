@@ -66,8 +66,8 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         # The command has an executor of its own: what a lock-step exchange waits for.
         self._io = entry.SideExecutor(self)
-        self._io.subscribe(Float64, 'solenoid_current_cmd',
-                           lambda m: self.runner.command(m.data), qos)
+        self._cmd = self._io.subscribe(Float64, 'solenoid_current_cmd',
+                                       lambda m: self.runner.command(m.data), qos)
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.create_service(SetBool, '~/pause', self._on_pause)
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -149,13 +149,19 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         """Before running on: wait (at most ``limit`` s) until every measurement publisher
         has ``wait_subscribers`` matched subscribers and every subscriber this node's graph
         shows. A reader the other side has discovered but this one not yet would miss the
-        first steps (a recorder's ~/ready sees only its own side)."""
+        first steps (a recorder's ~/ready sees only its own side). In lock-step, the same for
+        the command: a command sent before its writer is matched here is lost, and the run
+        would wait ``lock_step_timeout`` for it."""
         pubs = [self._pub_js, *self._pub_p.values(), *self._pub_f.values()]
         want = self.runner.cfg.wait_subscribers
         end = time.monotonic() + limit
         while True:
             short = {p.topic_name: (p.get_subscription_count(), max(
                 want, len(self.get_subscriptions_info_by_topic(p.topic_name)))) for p in pubs}
+            if self.cfg.lock_step:
+                name = self._cmd.topic_name
+                short[name] = (self._cmd.get_publisher_count(), max(
+                    min(want, 1), len(self.get_publishers_info_by_topic(name))))
             short = {k: v for k, v in short.items() if v[0] < v[1]}
             if not short:
                 return
