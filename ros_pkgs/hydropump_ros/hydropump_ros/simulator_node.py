@@ -146,12 +146,10 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         return bridge.result(reason)
 
     def _matched(self, limit: float = 10.0) -> None:
-        """Before running on: wait (at most ``limit`` s) until every measurement publisher
-        has ``wait_subscribers`` matched subscribers and every subscriber this node's graph
-        shows. A reader the other side has discovered but this one not yet would miss the
-        first steps (a recorder's ~/ready sees only its own side). In lock-step, the same for
-        the command: a command sent before its writer is matched here is lost, and the run
-        would wait ``lock_step_timeout`` for it."""
+        """Before running on, wait (at most ``limit`` s) until every measurement writer has
+        ``wait_subscribers`` matched readers and every reader the graph shows (a recorder's
+        ~/ready sees only its side), and in lock-step the command's writer is matched (a
+        command sent before is lost, and the run would wait ``lock_step_timeout``)."""
         pubs = [self._pub_js, *self._pub_p.values(), *self._pub_f.values()]
         want = self.runner.cfg.wait_subscribers
         end = time.monotonic() + limit
