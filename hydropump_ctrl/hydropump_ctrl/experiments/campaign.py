@@ -204,6 +204,32 @@ def nominal_tau(params: Params) -> float:
     return step_figures(r.t, r.q_l, 0.01, final=equilibrium(params, I1).q_l).t63
 
 
+# ---- the bench plant from the campaign's bags ----------------------------------------------
+
+#: What growing-flow staircases determine (docs/experiment_design.md): the actuator orifice and
+#: pressure of eq. 14's time constant, and the load law.
+CALIBRATED = ('actuator.mu_a', 'actuator.P_a_bar', 'line.mu_u')
+
+
+def bench_calibration(params: Params, profile: SensorProfile, recordings: Sequence[Recording],
+                      out: Path, start_factor: float = 1.2) -> tuple[list[list[str]], Path]:
+    """Calibrate :data:`CALIBRATED` of the bench plant (``params`` with the profile's
+    dither) from the identification bags, from a start ``start_factor`` off; the table rows
+    (parameter, start, calibrated, plant, error) and the validation figure of the first bag
+    (before and after)."""
+    from ..ident.calibrate import calibrate, params_with
+    from ..ident.calibration_report import write_calibration_report
+    plant = params.replace(profile.plant_overrides or {})
+    truth = {n: float(plant.flat()[n]) for n in CALIBRATED}
+    start = params_with(plant, CALIBRATED, [start_factor * truth[n] for n in CALIBRATED])
+    cal = calibrate(recordings, start, CALIBRATED)
+    out.mkdir(parents=True, exist_ok=True)
+    write_calibration_report(cal, out)
+    rows = [[e.name, f'{e.initial:.6g}', f'{e.value:.6g}', f'{truth[e.name]:.6g}',
+             f'{100.0 * (e.value / truth[e.name] - 1.0):+.3f} %'] for e in cal.estimates]
+    return rows, sorted(out.glob('compare_1_*.png'))[0]
+
+
 # ---- figures of a closed-loop run -----------------------------------------------------------
 
 def _average(t: np.ndarray, x: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
@@ -285,7 +311,8 @@ def stage_times(wall: float, simulated: float = 0.0, overhead: float = 0.0) -> d
 def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: SensorProfile,
                      idents: Sequence[Experiment], loops: Sequence[Experiment], walls: dict,
                      started: float, starts: dict | None = None,
-                     echo: Callable[[str], None] = print, pool=None) -> Path:
+                     echo: Callable[[str], None] = print, pool=None,
+                     calibrate: bool = False) -> Path:
     """Stages 2, 4 and 5 of the demo on its bags: fit, model analysis, report.
 
     Parameters
@@ -308,6 +335,9 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
         Simulation time [s] each experiment started at, by name (default 0).
     echo : callable
         Where progress lines and tables go (one string a call).
+    calibrate : bool
+        Also calibrate the bench plant from the identification bags
+        (:func:`bench_calibration`, about 25 s).
     pool : concurrent.futures.Executor, optional
         Where the work that waits for nothing here runs beside the fit (the operating map
         and dither figures, the plant's twin); without one, all of it runs in turn.
@@ -339,6 +369,14 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
     truth = truth()
     paper_fit = fit_recordings(ident.recordings, params=params, method='paper', joint=False)
     walls['fitting'] = stage_times(time.perf_counter() - t0)
+    calibration = None
+    if calibrate:
+        t0 = time.perf_counter()
+        echo(f'[3/5 fitting] calibration of {", ".join(CALIBRATED)} from the same bags ...')
+        calibration = bench_calibration(params, profile, ident.recordings,
+                                        run_dir / 'calibration')
+        echo(report.text_table(report.CALIBRATION_HEAD, calibration[0]))
+        walls['calibration'] = stage_times(time.perf_counter() - t0)
     echo(format_table(ident))
     rows = report.identification_rows(ident, truth, paper_fit)
     echo(report.text_table(['', 'G0 [%/range]', 'tau [ms]', 't_d [ms]'], rows))
@@ -364,7 +402,7 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
                                  sum(v['simulated_s'] for v in walls.values()),
                                  sum(v['overhead_s'] for v in walls.values()))
     sections = report.report_sections(ident, truth, rows, loop_results, modal, text, hyst,
-                                      walls, fit_paths, figs, bag_dir)
+                                      walls, fit_paths, figs, bag_dir, calibration)
     page = report.write_html(run_dir, sections)
     (run_dir / 'summary.json').write_text(json.dumps(report.summary(
         ident, truth, loop_results, walls), indent=2) + '\n')

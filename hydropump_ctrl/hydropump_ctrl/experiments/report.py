@@ -70,15 +70,19 @@ def text_table(head, rows) -> str:
     return '\n'.join([line(head), line(['-' * x for x in w])] + [line(r) for r in rows])
 
 
+CALIBRATION_HEAD = ['parameter', 'start', 'calibrated', 'plant', 'error']
+
+
 def report_sections(ident, truth, rows, loops, modal, analysis_text, hyst, walls, fit_paths,
-                    figs, bag_dir) -> list[tuple[str, str]]:
+                    figs, bag_dir, calibration=None) -> list[tuple[str, str]]:
     """The sections of the page, ``(title, HTML body)``: identification, Bode, steps,
     hysteresis, closed loop, model analysis and the run's wall times.
 
     ``rows`` are :func:`identification_rows`, ``loops`` the closed-loop figures, ``modal`` and
     ``analysis_text`` the model analysis (its modal part and all of it), ``hyst`` the gaps of
     :func:`.plots.plot_hysteresis`, ``fit_paths`` what :func:`~hydropump_ctrl.ident.write_report`
-    wrote, ``figs`` the folder of the PNG figures.
+    wrote, ``figs`` the folder of the PNG figures, ``calibration`` the rows and the figure of
+    :func:`.campaign.bench_calibration` (or ``None``).
     """
     head, lrows = loop_table(loops)
     return [
@@ -99,6 +103,12 @@ def report_sections(ident, truth, rows, loops, modal, analysis_text, hyst, walls
            "one configured 55 ms for every set here; the paper's ±5.5 ms suggests its "
            'acquisition chain varied between sets, which this bench does not model.</p>'
          + _img(Path(fit_paths['fig5'])) + _img(Path(fit_paths['fig6']))),
+        *([('The bench plant calibrated from the same bags (hydropump calibrate)',
+            "<p>The fine model's parameters that growing-flow staircases determine, fitted to "
+            'the nine bags (every recorded signal, one delay each) from a start 20 % off, '
+            'against the plant the simulator ran.</p>'
+            + _table(CALIBRATION_HEAD, calibration[0]) + _img(calibration[1]))]
+          if calibration else []),
         ('Bode: fine vs simplified vs identified', _img(figs / 'bode.png')),
         *([('Beyond the paper: the operating map and the dither sensitivity',
             '<p>eq. 19 of the noise-free fine model over load pressure and displacement '

@@ -292,6 +292,9 @@ def main(argv=None) -> int:
                     help='a short campaign: three identification experiments, EMC only')
     ap.add_argument('--sets', type=int, default=None, help='identification experiments')
     ap.add_argument('--dwell', type=float, default=None, help='stair duration [s]')
+    ap.add_argument('--calibrate', action='store_true',
+                    help='also calibrate the bench plant from the identification bags, with '
+                         'its validation figure in the report (about 25 s more)')
     ap.add_argument('--jobs', type=int, default=1, metavar='N',
                     help='run the experiments on N graphs at once, each in its own ROS '
                          'domain (default 1: one graph)')
@@ -417,7 +420,8 @@ def run(args) -> int:
             walls, starts = run_graph(stages, run_dir, run_dir / 'logs', profile_path)
         # 3. Fitting, 4. model analysis, 5. report: no graph needed.
         page = analyse_campaign(run_dir, run_dir / 'bags', params, profile, idents, loops,
-                                walls, t_all, starts, echo=_progress, pool=pool)
+                                walls, t_all, starts, echo=_progress, pool=pool,
+                                calibrate=args.calibrate)
     print(f'\nreport: {page.resolve()}\nbags: {(run_dir / "bags").resolve()}')
     return 0
 
