@@ -194,7 +194,8 @@ class SideExecutor:
         self._closed = False
         self.executor = SingleThreadedExecutor(context=owner.context)
         self.executor.add_node(self.node)
-        threading.Thread(target=self._spin, name='io', daemon=True).start()
+        self._thread = threading.Thread(target=self._spin, name='io', daemon=True)
+        self._thread.start()
 
     def subscribe(self, msg_type, topic: str, callback, qos):
         return self.node.create_subscription(msg_type, self._owner.resolve_topic_name(topic),
@@ -202,14 +203,18 @@ class SideExecutor:
 
     def _spin(self) -> None:
         try:
-            self.executor.spin()
+            while not self._closed and self.node.context.ok():
+                self.executor.spin_once(timeout_sec=0.1)
         except Exception:  # the context going down at shutdown ends it
             if self.node.context.ok() and not self._closed:
                 raise
 
     def close(self) -> None:
+        """End the thread before the node goes: a node destroyed under a waiting executor
+        aborts the process (a C++ thread left joinable), as a Ctrl-C at start-up showed."""
         self._closed = True
-        self.executor.shutdown(timeout_sec=2.0)
+        self._thread.join(timeout=2.0)
+        self.executor.shutdown(timeout_sec=1.0)
         self.node.destroy_node()
 
 
