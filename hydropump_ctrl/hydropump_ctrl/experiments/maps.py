@@ -73,6 +73,9 @@ def dither_sensitivity(params: Params, amplitudes: Sequence[float],
     g0 = np.full_like(tau, np.nan)
     for i, a in enumerate(amplitudes):
         for j, f in enumerate(frequencies):
+            if a == 0.0 and j > 0:  # no dither: one point for every frequency
+                tau[i, j], g0[i, j] = tau[i, 0], g0[i, 0]
+                continue
             fig = step_figures(params.replace({'input.dither_amp': float(a),
                                                'input.dither_freq': float(f)}), step=step)
             tau[i, j], g0[i, j] = fig['tau_up'], fig['G0']

@@ -177,19 +177,26 @@ def run(factory: Callable[[], object], *, prog: str, doc: str,
     return getattr(node, 'exit_code', 0)
 
 
+def hidden_node(owner):
+    """A node beside ``owner`` (same context and namespace, hidden name ``_<name>_io``, no
+    parameter services, no command-line remaps: names are resolved by ``owner`` first) for
+    subscriptions that ``owner``'s executor is not to serve."""
+    from rclpy.node import Node
+    return Node(f'_{owner.get_name()}_io', namespace=owner.get_namespace(),
+                context=owner.context, use_global_arguments=False,
+                start_parameter_services=False)
+
+
 class SideExecutor:
-    """A hidden node for a node's busiest subscriptions, spun by an executor of its own in a
-    thread of its own. rclpy rebuilds an executor's wait set at every wake, over every
-    subscription, service, timer and parameter service of its nodes: a lock-step exchange
-    that waits on one or a few subscriptions alone costs half as much (bench/bench_ros.py).
-    Topic names are resolved (remapped) by the owner first."""
+    """A :func:`hidden_node` for a node's busiest subscriptions, spun by an executor of its
+    own in a thread of its own. rclpy rebuilds an executor's wait set at every wake, over
+    every subscription, service, timer and parameter service of its nodes: a lock-step
+    exchange that waits on one or a few subscriptions alone costs half as much
+    (bench/bench_ros.py)."""
 
     def __init__(self, owner):
         from rclpy.executors import SingleThreadedExecutor
-        from rclpy.node import Node
-        self.node = Node(f'_{owner.get_name()}_io', namespace=owner.get_namespace(),
-                         context=owner.context, use_global_arguments=False,
-                         start_parameter_services=False)
+        self.node = hidden_node(owner)
         self._owner = owner
         self._closed = False
         self.executor = SingleThreadedExecutor(context=owner.context)

@@ -83,11 +83,8 @@ class RecorderNode(bridge.ExplainedParameters, Node):
         self._qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                                history=HistoryPolicy.KEEP_ALL)
         # The data subscriptions live on a node that no executor spins: the take loop serves
-        # them, at about four times the rate of rclpy's executor. Names are resolved
-        # (remapped) by this node first.
-        self._io = Node(f'_{self.get_name()}_io', namespace=self.get_namespace(),
-                        context=self.context, use_global_arguments=False,
-                        start_parameter_services=False)
+        # them, at about four times the rate of rclpy's executor.
+        self._io = entry.hidden_node(self)
         self._subs: list = []                        # (subscription, topic, stamped)
         self._clock_sub = self._io.create_subscription(
             _msg_class(SUITE_TYPES['/clock']), '/clock', lambda *_: None, self._qos, raw=True)
