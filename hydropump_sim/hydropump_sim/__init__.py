@@ -4,7 +4,8 @@ with mechanical feedback (the paper's fine model, simplified model and linear an
 Public API (stable):
 
 - :func:`load_params` - validated parameters from a params file such as ``config/pump.yaml``;
-- :func:`simulate` - time response of the fine or simplified model;
+- :func:`simulate` - time response of the fine or simplified model (:func:`held`: a step
+  schedule as an input);
 - :func:`equilibrium` - trim at any operating point;
 - :func:`linearize`, :func:`paper_linear`, :func:`transfer_matrix`, :func:`modal_analysis`,
   :func:`singular_perturbation_check` - linear analysis (eqs. 14-18, section IV);
@@ -26,11 +27,12 @@ _LAZY = {**{name: 'linear' for name in ('linearize', 'modal_analysis', 'paper_li
                                         'singular_perturbation_check', 'transfer_matrix')},
          **{name: 'simulate' for name in ('IntegrationError', 'IntegratorConfig', 'SimResult',
                                           'Simulator')},
+         'held': 'inputs',
          **{name: 'trim' for name in ('Equilibrium', 'equilibrium', 'TrimError')}}
 
 __all__ = [
     'Equilibrium', 'IntegrationError', 'IntegratorConfig', 'ParamError', 'Params', 'SimResult',
-    'Simulator', 'TrimError', 'equilibrium', 'linearize', 'load_params', 'modal_analysis',
+    'Simulator', 'TrimError', 'equilibrium', 'held', 'linearize', 'load_params', 'modal_analysis',
     'paper_linear', 'simulate', 'singular_perturbation_check', 'transfer_matrix',
 ]
 

@@ -65,6 +65,8 @@ _M = np.array([1.221224509226641, 6.019134481288629, 12.53708332932087, -0.68788
 OK, FAIL_STEP, FAIL_NAN, FAIL_STEPS, FAIL_BUDGET = 0, 1, 2, 3, 4
 
 jit = numba.njit(cache=True, fastmath=False, nogil=True)
+# Helpers of the stepper, inlined into it (a call per stage costs about a fifth of a step).
+inline = numba.njit(cache=True, fastmath=False, nogil=True, inline='always')
 
 
 @jit
@@ -365,33 +367,35 @@ def lu_solve(A, piv, b):
         b[i] = s / A[i, i]
 
 
-@jit
-def rodas_step(t, x, u, p, h, scale, rtol, xnew):
-    """One Rodas4 step of size ``h``; returns the scaled error norm (inf if not finite)."""
+@inline
+def time_derivative(t, x, u, p, f0, ft, work, ybuf):
+    """``df/dt`` into ``ft``: only the dither makes the system non-autonomous within a step."""
     n = x.shape[0]
-    f0 = np.empty(n)
-    ybuf = np.empty(N_Y)
-    work = np.empty(n)
-    J = np.empty((n, n))
-    evaluate(t, x, u, p, f0, ybuf)
-    jacobian(t, x, u, p, f0, scale, J, work, ybuf)
-    # Time derivative: only the dither makes the system non-autonomous within a step.
-    ft = np.zeros(n)
+    for i in range(n):
+        ft[i] = 0.0
     if p[P_DITHA] > 0.0:
         dt = 1.0e-7 / max(p[P_DITHF], 1.0)
         evaluate(t + dt, x, u, p, work, ybuf)
         for i in range(n):
             ft[i] = (work[i] - f0[i]) / dt
-    G = np.empty((n, n))
+
+
+@inline
+def w_matrix(t, x, u, p, h, f0, scale, G, piv, J, work, ybuf):
+    """``G = I/(h gamma) - df/dx`` at ``x``, LU-factorised in place; False if singular."""
+    n = x.shape[0]
+    jacobian(t, x, u, p, f0, scale, J, work, ybuf)
     for i in range(n):
         for j in range(n):
             G[i, j] = -J[i, j]
         G[i, i] += 1.0 / (h * _GAM)
-    piv = np.empty(n, dtype=np.int64)
-    if not lu_factor(G, piv):
-        return np.inf
-    K = np.zeros((6, n))
-    xs = np.empty(n)
+    return lu_factor(G, piv)
+
+
+@inline
+def stages(t, x, u, p, h, f0, ft, G, piv, K, xs, work, ybuf):
+    """The six Rodas4 stages ``K`` of one step from ``x`` with the factorised ``G``."""
+    n = x.shape[0]
     for s in range(6):
         if s == 0:
             for i in range(n):
@@ -409,31 +413,71 @@ def rodas_step(t, x, u, p, h, scale, rtol, xnew):
                 acc += _C[s, j] / h * K[j, i]
             K[s, i] = acc
         lu_solve(G, piv, K[s])
-    err = 0.0
-    for i in range(n):
-        acc = x[i]
-        for s in range(6):
-            acc += _M[s] * K[s, i]
-        xnew[i] = acc
-        if not math.isfinite(acc):
-            return np.inf
-        sk = rtol * scale[i] + rtol * max(abs(x[i]), abs(acc))
-        e = K[5, i] / sk
-        err += e * e
-    return math.sqrt(err / n)
 
 
 @jit
-def advance(t0, t1, x, u, p, h, rtol, h_min, max_steps, stats):
-    """Integrate ``x`` in place from ``t0`` to ``t1`` with inputs ``u`` held.
+def workspace(n):
+    """Work arrays of :func:`rodas_step` for ``n`` states (allocated once per interval)."""
+    return (np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(N_Y),
+            np.empty((n, n)), np.empty((n, n)), np.zeros((6, n)), np.empty(n, dtype=np.int64))
 
-    Adaptive Rodas4 steps inside the interval; ``h`` is the proposed first step, and the
-    proposed next step is returned with a status code. ``stats`` accumulates
-    ``[accepted, rejected]``. Absolute tolerances are ``rtol`` times the state scales.
+
+@jit
+def rodas_step(t, X, u, P, h, scale, rtol, Xnew, own_jacobian, ws):
+    """One Rodas4 step of size ``h`` for every row of ``X`` (a copy of the state per row of
+    packed parameters ``P``); returns the scaled error norm of row 0 (inf if not finite).
+
+    Row 0 is the trajectory whose error controls the step; the other rows take the same
+    step, so that differences between rows are smooth in the parameters (internal
+    numerical differentiation: a sensitivity is a difference of rows). With
+    ``own_jacobian`` each row uses its own Jacobian (the exact Rodas4 map of that row);
+    otherwise they share row 0's factorised ``G`` and cost six right-hand sides a step.
+    ``ws`` is the work space of :func:`workspace`.
     """
-    n = x.shape[0]
-    scale = state_scale(p, n)
-    xnew = np.empty(n)
+    m, n = X.shape
+    f0, ft, work, xs, ybuf, J, G, K, piv = ws
+    err = 0.0
+    for r in range(m):
+        x = X[r]
+        p = P[r]
+        evaluate(t, x, u, p, f0, ybuf)
+        time_derivative(t, x, u, p, f0, ft, work, ybuf)
+        if r == 0 or own_jacobian:
+            if not w_matrix(t, x, u, p, h, f0, scale, G, piv, J, work, ybuf):
+                return np.inf
+        stages(t, x, u, p, h, f0, ft, G, piv, K, xs, work, ybuf)
+        for i in range(n):
+            acc = x[i]
+            for s in range(6):
+                acc += _M[s] * K[s, i]
+            Xnew[r, i] = acc
+            if not math.isfinite(acc):
+                return np.inf
+            if r == 0:
+                # Stiffly accurate: the error estimate is the last stage.
+                sk = rtol * scale[i] + rtol * max(abs(x[i]), abs(acc))
+                e = K[5, i] / sk
+                err += e * e
+        if r == 0:
+            err = math.sqrt(err / n)
+            if err > 1.0:
+                return err   # rejected: the other rows need not be computed
+    return err
+
+
+@jit
+def advance(t0, t1, X, u, P, h, rtol, h_min, max_steps, stats, own_jacobian=False):
+    """Integrate every row of ``X`` in place from ``t0`` to ``t1`` with inputs ``u`` held.
+
+    Adaptive Rodas4 steps inside the interval, controlled by row 0 (see :func:`rodas_step`);
+    ``h`` is the proposed first step, and the proposed next step is returned with a status
+    code. ``stats`` accumulates ``[accepted, rejected]``. Absolute tolerances are ``rtol``
+    times the state scales.
+    """
+    m, n = X.shape
+    scale = state_scale(P[0], n)
+    Xnew = np.empty((m, n))
+    ws = workspace(n)
     t = t0
     h = min(h, t1 - t0)
     steps = 0
@@ -445,11 +489,12 @@ def advance(t0, t1, x, u, p, h, rtol, h_min, max_steps, stats):
         steps += 1
         last = t + h >= t1 - 1.0e-12 * max(abs(t1), 1.0)
         hs = t1 - t if last else h
-        err = rodas_step(t, x, u, p, hs, scale, rtol, xnew)
+        err = rodas_step(t, X, u, P, hs, scale, rtol, Xnew, own_jacobian, ws)
         if err <= 1.0:
             stats[0] += 1
-            for i in range(n):
-                x[i] = xnew[i]
+            for r in range(m):
+                for i in range(n):
+                    X[r, i] = Xnew[r, i]
             t = t1 if last else t + hs
             fac = 0.9 * (max(err, 1.0e-10)) ** -0.25
             fac = min(fac, 1.0) if last_rejected else min(fac, 5.0)
@@ -470,30 +515,36 @@ def advance(t0, t1, x, u, p, h, rtol, h_min, max_steps, stats):
 
 
 @jit
-def run(x0, t0, dt, U, p, rtol, h_min, max_steps, decim, Y, X, stats, max_total):
-    """Integrate over ``len(U)`` increments of ``dt``, inputs ``U[k]`` held on each.
+def run(X0, t0, dt, U, P, rtol, h_min, max_steps, decim, Y, X, stats, max_total,
+        own_jacobian=False):
+    """Integrate every row of ``X0`` (one per row of ``P``, see :func:`rodas_step`) over
+    ``len(U)`` increments of ``dt``, inputs ``U[k]`` held on each.
 
-    Outputs are written every ``decim`` increments into ``Y`` (and states into ``X``), the
-    first row at ``t0``. ``max_total`` bounds the solver steps counted in ``stats`` (0: no
+    Outputs are written every ``decim`` increments into ``Y[r]`` (and states into ``X[r]``),
+    the first row at ``t0``. ``max_total`` bounds the solver steps counted in ``stats`` (0: no
     bound). Returns ``(status, increments done)``.
     """
     n_inc = U.shape[0]
-    x = x0.copy()
-    dx = np.empty(x.shape[0])
+    m, n = X0.shape
+    x = X0.copy()
+    dx = np.empty(n)
     h = dt
-    evaluate(t0, x, U[0], p, dx, Y[0])
-    X[0, :] = x
+    for r in range(m):
+        evaluate(t0, x[r], U[0], P[r], dx, Y[r, 0])
+        X[r, 0, :] = x[r]
     row = 1
     for k in range(n_inc):
         t = t0 + k * dt
-        h, status = advance(t, t + dt, x, U[k], p, h, rtol, h_min, max_steps, stats)
+        h, status = advance(t, t + dt, x, U[k], P, h, rtol, h_min, max_steps, stats,
+                            own_jacobian)
         if status != OK:
             return status, k
         if max_total > 0 and stats[0] + stats[1] > max_total:
             return FAIL_BUDGET, k + 1
         if (k + 1) % decim == 0:
             kk = min(k + 1, n_inc - 1)
-            evaluate(t + dt, x, U[kk], p, dx, Y[row])
-            X[row, :] = x
+            for r in range(m):
+                evaluate(t + dt, x[r], U[kk], P[r], dx, Y[r, row])
+                X[r, row, :] = x[r]
             row += 1
     return OK, n_inc

@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from .errors import HydropumpError
+from .inputs import held
 from .params import check_input, default_params_path, INPUTS, load_params, Params
 from .schema import ParamError, read_yaml
 
@@ -66,11 +67,7 @@ class Signal:
         else:
             ts = np.array([pt[0] for pt in self.points])
             vs = np.array([pt[1] for pt in self.points])
-            if self.kind == 'ramp':
-                v = np.interp(t, ts, vs)
-            else:
-                idx = np.searchsorted(ts, t, side='right') - 1
-                v = vs[np.clip(idx, 0, None)]
+            v = np.interp(t, ts, vs) if self.kind == 'ramp' else np.asarray(held(ts, vs)(t))
         amp, freq, phase, start = self.sine
         if amp:
             v = v + np.where(t >= start, amp * np.sin(2 * np.pi * freq * (t - start) + phase),

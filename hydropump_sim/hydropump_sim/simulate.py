@@ -19,11 +19,12 @@ import numpy as np
 
 from . import _core as c
 from .errors import HydropumpError, InputError
+from .inputs import held
 from .model import INPUTS, OUTPUT_UNITS, OUTPUTS, pack, state_names
 from .params import check_input, Params
 from .trim import equilibrium, operating_inputs
 
-Signal = Union[float, Callable[[float], float], None]
+Signal = Union[float, Callable[[float], float], np.ndarray, None]
 
 
 class IntegrationError(HydropumpError, RuntimeError):
@@ -96,11 +97,20 @@ class SimResult:
                    comments='', fmt='%.10g')
 
 
-def _sample(signal: Signal, default: float, t: np.ndarray, name: str) -> np.ndarray:
-    """Evaluate a float, a callable of time or ``None`` on the increment start times."""
+def _sample(signal: Signal, default: float, t: np.ndarray, name: str,
+            dt_held: float = 0.0) -> np.ndarray:
+    """Evaluate a float, a callable of time, an array held per ``dt_held`` or ``None`` on the
+    increment start times."""
     if signal is None:
         return np.full(t.shape, default)
-    if callable(signal):
+    if isinstance(signal, np.ndarray) and signal.ndim == 1:
+        n = int(round(t[-1] / dt_held)) + 1 if t.size else 0
+        if signal.size < n:
+            raise InputError(f'{name}: {signal.size} held samples cover '
+                             f'{signal.size * dt_held:.6g} s; the run needs {n} '
+                             f'({n * dt_held:.6g} s at {dt_held:.6g} s a sample)')
+        v = np.asarray(held(np.arange(n) * dt_held, signal[:n])(t), dtype=float)
+    elif callable(signal):
         try:
             v = np.asarray(signal(t), dtype=float)
             if v.shape != t.shape:
@@ -120,20 +130,22 @@ def _sample(signal: Signal, default: float, t: np.ndarray, name: str) -> np.ndar
 
 
 def input_table(params: Params, t: np.ndarray, current: Signal, load_pressure: Signal = None,
-                aperture: Signal = None, shaft_speed: Signal = None) -> tuple[np.ndarray, int]:
-    """Held inputs ``[i_s, P_u, xi_u, f_p]`` on ``t``; current clamped to eq. 2.
+                aperture: Signal = None, shaft_speed: Signal = None, dt_held: float = 0.0
+                ) -> tuple[np.ndarray, int]:
+    """Held inputs ``[i_s, P_u, xi_u, f_p]`` on ``t``; current clamped to eq. 2. An input
+    given as an array holds each sample for ``dt_held``.
 
     Returns the table and the number of clamped current samples.
     """
     u0 = operating_inputs(params)
-    I_s = _sample(current, params.I_nominal, t, 'current')
+    I_s = _sample(current, params.I_nominal, t, 'current', dt_held)
     lo, hi = params.I_limits
     n_clamped = int(np.count_nonzero((I_s < lo) | (I_s > hi)))
     U = np.empty((t.size, c.N_U))
     U[:, c.U_IS] = np.clip(I_s, lo, hi) - params.I_nominal
-    U[:, c.U_PU] = _sample(load_pressure, u0[c.U_PU], t, 'load_pressure')
-    U[:, c.U_XI] = _sample(aperture, u0[c.U_XI], t, 'aperture')
-    U[:, c.U_FP] = _sample(shaft_speed, u0[c.U_FP], t, 'shaft_speed')
+    U[:, c.U_PU] = _sample(load_pressure, u0[c.U_PU], t, 'load_pressure', dt_held)
+    U[:, c.U_XI] = _sample(aperture, u0[c.U_XI], t, 'aperture', dt_held)
+    U[:, c.U_FP] = _sample(shaft_speed, u0[c.U_FP], t, 'shaft_speed', dt_held)
     # The operating-point inputs take the ranges of their plant parameters.
     for col, name in ((c.U_PU, 'load_pressure'), (c.U_XI, 'aperture'),
                       (c.U_FP, 'shaft_speed')):
@@ -181,13 +193,16 @@ def simulate(params: Params, duration: float, current: Signal = None, *, model: 
         Plant parameters (:func:`hydropump_sim.load_params`).
     duration : float
         Simulated time [s].
-    current : float or callable or None
-        Absolute solenoid current ``I_s`` [A] or a function of time ``t`` [s]; ``None`` is
-        ``I_min + I_max`` (50 %). Values outside eq. 2 are clamped and counted.
+    current : float or callable or ndarray or None
+        Absolute solenoid current ``I_s`` [A], a function of time ``t`` [s], or an array of
+        samples each held for ``dt_out`` (sample ``k`` from ``k dt_out`` on, as a recording
+        holds its current); ``None`` is ``I_min + I_max`` (50 %). Values outside eq. 2 are
+        clamped and counted.
     model : {'fine', 'simplified', 'simplified_Kc'}
         ``'simplified'`` is eq. 10 as printed; ``'simplified_Kc'`` keeps ``K_c``.
-    load_pressure, aperture, shaft_speed : float or callable or None
-        ``P_u`` [Pa gauge], ``xi_u`` [-] and ``f_p`` [Hz]; ``None`` = parameter file value.
+    load_pressure, aperture, shaft_speed : float or callable or ndarray or None
+        ``P_u`` [Pa gauge], ``xi_u`` [-] and ``f_p`` [Hz], in the forms ``current`` takes;
+        ``None`` = parameter file value.
     x0 : array_like, optional
         Initial state; default the equilibrium at the initial inputs.
     dt_out : float
@@ -207,7 +222,8 @@ def simulate(params: Params, duration: float, current: Signal = None, *, model: 
     n_out, decim, dt = _grid(duration, dt_out, dt_max)
     n_inc = n_out * decim
     t_inc = np.arange(n_inc) * dt
-    U, n_clamped = input_table(params, t_inc, current, load_pressure, aperture, shaft_speed)
+    U, n_clamped = input_table(params, t_inc, current, load_pressure, aperture, shaft_speed,
+                               dt_out)
     p = pack(params, model)
     if x0 is None:
         x0 = equilibrium(params, U[0, c.U_IS] + params.I_nominal, load_pressure=U[0, c.U_PU],
@@ -248,8 +264,9 @@ def _run_rodas(x0, dt, U, p, rtol, config, decim, Y, X, stats, t0=0.0):
     for r0 in range(0, n_out, rows):
         r1 = min(r0 + rows, n_out)
         k0, k1 = r0 * decim, r1 * decim
-        status, done = c.run(x, t0 + k0 * dt, dt, U[k0:k1], p, rtol, config.h_min,
-                             config.max_steps, decim, Y[r0:r1 + 1], X[r0:r1 + 1], stats, budget)
+        status, done = c.run(x[None], t0 + k0 * dt, dt, U[k0:k1], p[None], rtol, config.h_min,
+                             config.max_steps, decim, Y[None, r0:r1 + 1], X[None, r0:r1 + 1],
+                             stats, budget)
         t_fail = (k0 + done) * dt
         if status == c.FAIL_BUDGET:
             raise IntegrationError(
@@ -377,8 +394,8 @@ class Simulator:
         t0 = self.steps * self.dt
         x = self.x.copy()
         cfg = self.config
-        h, status = c.advance(t0, t0 + self.dt, x, self.u, self._p, self._h, cfg.rtol,
-                              cfg.h_min, cfg.max_steps, self.stats)
+        h, status = c.advance(t0, t0 + self.dt, x[None], self.u, self._p[None], self._h,
+                              cfg.rtol, cfg.h_min, cfg.max_steps, self.stats)
         if status != c.OK:
             raise IntegrationError(f'integration failed at t = {t0:.6g} s (code {status})')
         self.x = x

@@ -241,8 +241,8 @@ def _march(params: Params, x0: np.ndarray, u: np.ndarray, p: np.ndarray, model: 
     dx = np.empty_like(x)
     t0 = time.perf_counter()
     for k in range(int(horizon / (dt * chunk))):
-        status, _ = c.run(x, k * dt * chunk, dt, U, p, 1e-6, 1e-12, 20000, 1, Y, X, stats,
-                          max_steps)
+        status, _ = c.run(x[None], k * dt * chunk, dt, U, p[None], 1e-6, 1e-12, 20000, 1, Y[None],
+                          X[None], stats, max_steps)
         if status == c.FAIL_BUDGET:
             return x, (f'the integration toward it took more than {max_steps:.3g} solver steps '
                        'in {:.3g} s (the parameters make the model very stiff)'.format(

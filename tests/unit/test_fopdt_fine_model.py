@@ -13,7 +13,7 @@ import pytest
 
 from hydropump_ctrl import ident as fp
 from hydropump_ctrl.ident import Recording, recording_to_bag
-from hydropump_sim import simulate
+from hydropump_sim import held, simulate
 from hydropump_sim.scaling import current_for_displacement
 from hydropump_sim.sensors import apply_profile, load_profile, profile_from_dict
 
@@ -74,8 +74,7 @@ def test_bench_chain_delay_is_recovered_from_a_bag(params, tmp_path):
     times = np.array([0.0, 1.0, 3.5, 6.0, 8.5])
     lo, hi = params.current_range
 
-    def current(t):
-        return lo + (hi - lo) * levels[np.searchsorted(times, np.asarray(t), side='right') - 1]
+    current = held(times, lo + (hi - lo) * levels)
 
     res = simulate(plant, 11.0, current)
     meas = apply_profile(prof, res.t, {'solenoid_current': res.I_s, 'line_flow': res.q_l})

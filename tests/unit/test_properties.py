@@ -5,7 +5,7 @@ from hypothesis import given, HealthCheck, settings
 from hypothesis import strategies as st
 import numpy as np
 
-from hydropump_sim import simulate
+from hydropump_sim import held, simulate
 
 SCALES = {
     'spool.m_c': (0.5, 3.0), 'plate.m_a': (0.3, 3.0), 'plate.K_b': (0.5, 2.0),
@@ -16,9 +16,7 @@ SCALES = {
 
 
 def _steps(values, duration):
-    ts = np.linspace(0.0, duration, len(values), endpoint=False)
-    vs = np.array(values)
-    return lambda t: vs[np.clip(np.searchsorted(ts, t, side='right') - 1, 0, None)]
+    return held(np.linspace(0.0, duration, len(values), endpoint=False), values)
 
 
 @st.composite

@@ -170,7 +170,7 @@ def plant_truth(params: Params, profile: SensorProfile, recordings: Sequence[Rec
         ``G0``, ``tau`` (and ``tau_std``, between the runs), ``td_plant`` of the twin's fit,
         ``td_configured`` (the sensor delay) and ``tau_nominal`` (:func:`nominal_tau`).
     """
-    from hydropump_sim import simulate
+    from hydropump_sim import held, simulate
 
     from ..ident import fit_recordings
     plant = params.replace(profile.plant_overrides or {})
@@ -181,12 +181,9 @@ def plant_truth(params: Params, profile: SensorProfile, recordings: Sequence[Rec
         ok = np.isfinite(rec['solenoid_current_cmd'])
         ns = np.round(rec.t[ok] * 1e9).astype(np.int64)
         t, u = (ns - ns[0]) * 1e-9, rec['solenoid_current_cmd'][ok]
-
-        def held(tt, t=t, u=u):
-            return u[np.clip(np.searchsorted(t, tt, side='right') - 1, 0, u.size - 1)]
-
-        res = simulate(plant, float(t[-1]) + 1e-3, held, dt_out=1e-3)
-        recs.append(Recording(res.t, {'solenoid_current': held(res.t), 'line_flow': res.q_l},
+        command = held(t, u)
+        res = simulate(plant, float(t[-1]) + 1e-3, command, dt_out=1e-3)
+        recs.append(Recording(res.t, {'solenoid_current': command(res.t), 'line_flow': res.q_l},
                               name=f'{rec.name} twin'))
     twin = fit_recordings(recs, params=params, joint=False)
     return {'G0': twin.G0, 'tau': twin.tau, 'tau_std': twin.pooled.std['tau'],

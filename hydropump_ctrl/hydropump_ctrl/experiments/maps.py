@@ -20,7 +20,6 @@ import numpy as np
 from hydropump_sim.params import Params
 from hydropump_sim.simulate import simulate
 
-from ..ident.calibrate import held_signal
 from ..ident.matrix import fit_element
 
 STEP = 0.02     # current fraction of the 0..100 % displacement range
@@ -38,7 +37,7 @@ def step_figures(params: Params, displacement: float = 0.5, *,
     di = step * (hi - lo)
     n = int(round(DWELL / DT))
     cur = np.concatenate([np.full(n, i0), np.full(n, i0 + di), np.full(n, i0)])
-    res = simulate(params, (cur.size - 1) * DT, held_signal(cur, DT),
+    res = simulate(params, (cur.size - 1) * DT, cur,
                    load_pressure=load_pressure, dt_out=DT)
     q = res.q_l[:cur.size]
     up = fit_element('G21_up', [(cur, q)], DT)

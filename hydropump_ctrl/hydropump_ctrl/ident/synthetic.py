@@ -164,12 +164,9 @@ def plant_recording(params, current: np.ndarray, *, load_pressure: np.ndarray | 
     from hydropump_sim.sensors import apply_profile
     from hydropump_sim.simulate import simulate
 
-    from .calibrate import held_signal
-
     n = current.size
-    res = simulate(params, (n - 1) * dt, held_signal(current, dt),
-                   load_pressure=None if load_pressure is None
-                   else held_signal(load_pressure, dt), dt_out=dt, dt_max=dt)
+    res = simulate(params, (n - 1) * dt, current, load_pressure=load_pressure, dt_out=dt,
+                   dt_max=dt)
     y = res.y[:n]
     true = {s: (res.P_u[:n] if o is None else y[:, OUTPUTS.index(o)])
             for s, o in SIGNAL_OUTPUTS.items()}
