@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from .measure import SIGNALS as MEASURED
 from .schema import (
     build,
     check_all,
@@ -34,18 +35,8 @@ from .schema import (
     to_flat,
 )
 
-# Measured signals and their SI units.
-SIGNALS = {
-    'solenoid_current': 'A',
-    'pump_flow': 'm^3/s',
-    'line_flow': 'm^3/s',
-    'load_flow': 'm^3/s',
-    'actuator_pressure': 'Pa',
-    'line_pressure': 'Pa',
-    'load_pressure': 'Pa',
-    'spool_position': 'm',
-    'actuator_position': 'm',
-}
+# Measured signals and their SI units (the one table is hydropump_sim.measure.SIGNALS).
+SIGNALS = {name: info.unit for name, info in MEASURED.items()}
 
 # Largest noise and quantum per unit: beyond these a value was typed in another unit.
 _SCALE_MAX = {'A': 1.0, 'm^3/s': 1.0e-2, 'Pa': 1.0e7, 'm': 1.0e-2}

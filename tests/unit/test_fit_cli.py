@@ -116,7 +116,7 @@ def bad_inputs(tmp_path_factory, bags):
     cut.mkdir()
     rec = syn.make_record(TRUTH, seed=2, duration=30.0)
     full = recording_to_bag(rec, base / 'full')
-    data = (full / 'full.mcap').read_bytes()
+    data = next(full.glob('*.mcap')).read_bytes()
     (cut / 'cut.mcap').write_bytes(data[:int(0.75 * len(data))])
     (base / 'notes.txt').write_text('not a bag\n')
     return {'flat': base / 'flat', 'nan': base / 'nan', 'cut': cut,

@@ -295,12 +295,12 @@ def _long_bag(path, seconds=30.0):
 
 def test_mcap_cut_short_is_read_up_to_its_last_whole_chunk(tmp_path):
     t, cur, flow = _long_bag(tmp_path / 'bag')
-    mcap = tmp_path / 'bag' / 'bag.mcap'
+    mcap = next((tmp_path / 'bag').glob('*.mcap'))
     data = mcap.read_bytes()
     for with_metadata in (True, False):
         cut = tmp_path / f'cut{with_metadata}'
         cut.mkdir()
-        (cut / 'bag.mcap').write_bytes(data[:int(0.8 * len(data))])
+        (cut / mcap.name).write_bytes(data[:int(0.8 * len(data))])
         if with_metadata:
             (cut / 'metadata.yaml').write_text((tmp_path / 'bag' / 'metadata.yaml').read_text())
         rec = read_recording(cut)
@@ -404,7 +404,7 @@ def test_saved_recording_round_trip(tmp_path):
 
 def test_corrupted_mcap_never_raises_anything_but_a_bag_error(tmp_path):
     bag, _ = _contract_bag(tmp_path / 'bag', n=1500)
-    data = (bag / 'bag.mcap').read_bytes()
+    data = next(bag.glob('*.mcap')).read_bytes()
     rng = np.random.default_rng(11)
     outcomes = set()
     for i in range(25):
@@ -552,7 +552,7 @@ def test_roles_pick_the_signals_that_act_as_current_and_flow(tmp_path):
 
 def test_read_recordings_refuses_a_truncated_bag_unless_allowed(tmp_path):
     _long_bag(tmp_path / 'bag')
-    data = (tmp_path / 'bag' / 'bag.mcap').read_bytes()
+    data = (next((tmp_path / 'bag').glob('*.mcap'))).read_bytes()
     (tmp_path / 'cut').mkdir()
     (tmp_path / 'cut' / 'bag.mcap').write_bytes(data[:int(0.8 * len(data))])
     good, _ = _contract_bag(tmp_path / 'good')

@@ -13,7 +13,8 @@ Modules, each building only on those above it:
 - :mod:`.diagnostics` - residual tests, covariance, flags, :class:`FopdtFit`;
 - :mod:`.robust`, :mod:`.paper` - the two methods;
 - :mod:`.fit` - one record: :func:`fit_fopdt` (arrays), :func:`fit_recording`;
-- :mod:`.bags` - rosbag2 storage (read raw, write);
+- :mod:`.bags` - rosbag2 storage, read raw (bags are written in one place,
+  :mod:`hydropump_ctrl.recorder.bag`);
 - :mod:`.recording` - :class:`Recording`, bags decoded into named SI signals, ``.npz``;
 - :mod:`.pooling` - several sets: :func:`fit_recordings`, :func:`fit_bags`, the joint fit;
 - :mod:`.report` - tables, JSON, Markdown, Fig. 5 and 6;
@@ -31,7 +32,8 @@ Beyond eq. 19 (imported from their modules; they need the plant library's simula
 Pure Python: nothing here imports ROS.
 """
 
-from .bags import list_topics, match_topic, write_bag
+from ..recorder.bag import write_bag
+from .bags import list_topics, match_topic
 from .diagnostics import FLAG_TEXT, FopdtFit
 from .errors import BagError, FitError
 from .fit import fit_fopdt, fit_recording, METHODS

@@ -15,12 +15,12 @@ Nothing here imports ROS.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-import functools
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..recorder.bag import typestore
 from .errors import BagError
 
 MCAP_MAGIC = b'\x89MCAP0\r\n'
@@ -32,11 +32,6 @@ def one_line(text: Any) -> str:
     return ' '.join(str(text).split()) or type(text).__name__
 
 
-@functools.lru_cache(maxsize=1)
-def typestore():
-    """The ROS 2 Jazzy message types of ``rosbags`` (one store per process)."""
-    from rosbags.typesys import get_typestore, Stores
-    return get_typestore(Stores.ROS2_JAZZY)
 
 
 @dataclass
@@ -308,62 +303,3 @@ def header_stamps(msgs: list) -> np.ndarray | None:
                       for m in msgs), np.int64, len(msgs))
     # Unset stamps are all zero; a simulation starting at t = 0 stamps only its first.
     return st if np.count_nonzero(st) > st.size // 2 else None
-
-
-# --------------------------------------------------------------------------------------------
-# Writing bags (tests, conversions): the recorder's format, written with rosbags
-# --------------------------------------------------------------------------------------------
-
-FLOAT64 = 'std_msgs/msg/Float64'
-FLUID_PRESSURE = 'sensor_msgs/msg/FluidPressure'
-JOINT_STATE = 'sensor_msgs/msg/JointState'
-
-
-def write_bag(path: str | Path, streams: dict[str, tuple[str, np.ndarray, Any]], *,
-              storage: str = 'mcap', log_offset_ns: int = 0) -> Path:
-    """Write topics of numbers as a rosbag2 bag (version 9) with ``rosbags``.
-
-    Parameters
-    ----------
-    path : path-like
-        Bag directory to create (must not exist).
-    streams : dict
-        ``topic -> (msgtype, t [s], values)``. ``sensor_msgs/msg/FluidPressure`` and a type
-        with a ``data`` number (``std_msgs/msg/Float64``) take an array of values;
-        ``sensor_msgs/msg/JointState`` takes a dict ``entry name -> positions``. The first
-        and the last are stamped with ``t``. Log times are ``t`` plus ``log_offset_ns``,
-        written in time order across topics.
-    storage : {'mcap', 'sqlite3'}
-    """
-    from rosbags.rosbag2 import StoragePlugin, Writer
-    ts = typestore()
-    plugin = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}[storage]
-    path = Path(path)
-    events = []
-    with Writer(path, version=9, storage_plugin=plugin) as w:
-        for topic, (msgtype, t, vals) in streams.items():
-            conn = w.add_connection(topic, msgtype, typestore=ts)
-            for k, ns in enumerate(int(round(tk * 1e9)) for tk in np.asarray(t, float)):
-                msg = _message(ts, msgtype, ns, vals, k)
-                events.append((ns + log_offset_ns, len(events), conn,
-                               ts.serialize_cdr(msg, msgtype)))
-        events.sort(key=lambda e: (e[0], e[1]))
-        for ns, _, conn, raw in events:
-            w.write(conn, ns, raw)
-    return path
-
-
-def _message(ts, msgtype: str, ns: int, vals, k: int):
-    """Message ``k`` of a stream of ``write_bag``, stamped ``ns`` where the type has a header."""
-    cls = ts.types[msgtype]
-    if msgtype not in (FLUID_PRESSURE, JOINT_STATE):
-        return cls(data=float(vals[k]))
-    stamp = ts.types['builtin_interfaces/msg/Time'](sec=ns // 1_000_000_000,
-                                                    nanosec=ns % 1_000_000_000)
-    hdr = ts.types['std_msgs/msg/Header'](stamp=stamp, frame_id='')
-    if msgtype == FLUID_PRESSURE:
-        return cls(header=hdr, fluid_pressure=float(vals[k]), variance=0.0)
-    empty = np.zeros(0)
-    return cls(header=hdr, name=list(vals), position=np.array([float(v[k]) for v in
-                                                                 vals.values()]),
-               velocity=empty, effort=empty)

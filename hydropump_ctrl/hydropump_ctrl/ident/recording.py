@@ -36,20 +36,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .bags import (
-    Bag,
-    decode,
-    existing,
-    FLOAT64,
-    FLUID_PRESSURE,
-    header_stamps,
-    JOINT_STATE,
-    match_topic,
-    one_line,
-    open_bag,
-    Stream,
-    write_bag,
-)
+from hydropump_sim.measure import FLOAT64, JOINT_STATE
+from hydropump_sim.measure import SIGNALS as MEASURED
+
+from ..recorder.bag import write_bag
+from .bags import Bag, decode, existing, header_stamps, match_topic, one_line, open_bag, Stream
 from .errors import BagError
 
 DEFAULT_CURRENT_TOPIC = 'solenoid_current'
@@ -80,10 +71,6 @@ class SignalSpec:
     msgtype: str = FLOAT64
 
 
-def _pressure(topic: str, label: str) -> SignalSpec:
-    return SignalSpec(topic, PRESSURE_UNIT, label, msgtype=FLUID_PRESSURE)
-
-
 def _joint(topic: str, entry: str, unit: str, label: str, held: bool = False) -> SignalSpec:
     return SignalSpec(topic, unit, label, held=held, entry=entry, msgtype=JOINT_STATE)
 
@@ -92,21 +79,14 @@ def _state(entry: str, unit: str, label: str) -> SignalSpec:
     return _joint('controller/state', entry, unit, label, held=True)
 
 
-# Labels named as in the paper. The controller's state entries are those its node publishes.
+# The plant's signals from the one table (hydropump_sim.measure), pressures absolute as
+# FluidPressure carries them; the controller's state entries are those its node publishes.
 SIGNALS = {
-    'solenoid_current': SignalSpec('solenoid_current', 'A', 'solenoid current I_s',
-                                   held=True),
+    **{name: SignalSpec(i.topic, PRESSURE_UNIT if i.kind == 'pressure' else i.unit, i.label,
+                        held=i.held, entry=i.entry, msgtype=i.msgtype)
+       for name, i in MEASURED.items()},
     'solenoid_current_cmd': SignalSpec('solenoid_current_cmd', 'A',
                                        'solenoid current command I_s,ref', held=True),
-    'line_flow': SignalSpec('line_flow', 'm^3/s', 'line flow q_l'),
-    'pump_flow': SignalSpec('pump_flow', 'm^3/s', 'pump flow Q_p'),
-    'load_flow': SignalSpec('load_flow', 'm^3/s', 'load flow Q_load'),
-    'line_pressure': _pressure('line_pressure', 'line pressure P_l'),
-    'load_pressure': _pressure('load_pressure', 'load pressure P_u'),
-    'actuator_pressure': _pressure('actuator_pressure', 'actuator pressure P_a'),
-    'spool_position': _joint('joint_states', 'spool', 'm', 'spool position x_c'),
-    'actuator_position': _joint('joint_states', 'swash_plate_actuator', 'm',
-                                'actuator position x_a'),
     'controller_reference': _state('reference', MODE_UNIT, 'controller reference'),
     'controller_estimate': _state('estimate', MODE_UNIT,
                                   'controller estimate of the controlled variable'),

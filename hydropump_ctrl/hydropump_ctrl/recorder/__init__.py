@@ -14,6 +14,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from hydropump_sim.measure import FLOAT64, JOINT_STATE
+from hydropump_sim.measure import SIGNALS as MEASURED
 from hydropump_sim.schema import spec
 
 from .bag import BagError, BagWriter, message_definition, qos_profile, unique_path
@@ -24,24 +26,17 @@ __all__ = ['BagError', 'BagWriter', 'DEFAULT_TOPICS', 'Record', 'Recorder', 'Rec
            'Sequencer', 'Session', 'SUITE_TYPES', 'header_stamp', 'message_definition',
            'qos_profile', 'unique_path']
 
-# The suite's topics and their types; other topics are looked up in the ROS graph.
+# The suite's topics and their types (the plant's from the one signal table); other topics
+# are looked up in the ROS graph.
+_PLANT_TOPICS = {i.topic: i.msgtype for i in MEASURED.values()}
 SUITE_TYPES = {
-    'solenoid_current_cmd': 'std_msgs/msg/Float64',
-    'solenoid_current': 'std_msgs/msg/Float64',
-    'pump_flow': 'std_msgs/msg/Float64',
-    'line_flow': 'std_msgs/msg/Float64',
-    'load_flow': 'std_msgs/msg/Float64',
-    'actuator_pressure': 'sensor_msgs/msg/FluidPressure',
-    'line_pressure': 'sensor_msgs/msg/FluidPressure',
-    'load_pressure': 'sensor_msgs/msg/FluidPressure',
-    'joint_states': 'sensor_msgs/msg/JointState',
-    'controller/state': 'sensor_msgs/msg/JointState',
+    'solenoid_current_cmd': FLOAT64,
+    **_PLANT_TOPICS,
+    'controller/state': JOINT_STATE,
     '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
     '/clock': 'rosgraph_msgs/msg/Clock',
 }
-DEFAULT_TOPICS = ['solenoid_current_cmd', 'solenoid_current', 'pump_flow', 'line_flow',
-                  'load_flow', 'actuator_pressure', 'line_pressure', 'load_pressure',
-                  'joint_states', 'controller/state']
+DEFAULT_TOPICS = ['solenoid_current_cmd', *_PLANT_TOPICS, 'controller/state']
 
 
 @dataclass(frozen=True)

@@ -30,8 +30,10 @@ import re
 from typing import Any
 
 from mcap.writer import CompressionType, Writer
+import numpy as np
 
 from hydropump_sim.errors import HydropumpError
+from hydropump_sim.measure import FLUID_PRESSURE, JOINT_STATE
 
 INT64_MAX = 2 ** 63 - 1
 INFINITE = {'sec': 9223372036, 'nsec': 854775807}   # RMW_DURATION_INFINITE
@@ -119,14 +121,15 @@ def yaml_cpp(node: Any) -> str:
 # ---- message definitions -------------------------------------------------------------------
 
 @functools.cache
-def _typestore():
+def typestore():
+    """The ROS 2 Jazzy message types of ``rosbags`` (one store per process)."""
     from rosbags.typesys import get_typestore, Stores
     return get_typestore(Stores.ROS2_JAZZY)
 
 
 def message_definition(msgtype: str) -> tuple[str, str]:
     """``(ros2msg text with its dependencies, RIHS01 type hash)`` of ``pkg/msg/Type``."""
-    store = _typestore()
+    store = typestore()
     try:
         text, _ = store.generate_msgdef(msgtype, ros_version=2)
         return text, store.hash_rihs01(msgtype)
@@ -315,3 +318,68 @@ def open_unique(path: str | os.PathLike, **kw) -> BagWriter:
         except BagExistsError:
             path = unique_path(base.with_name(f'{base.name}_{n}'))
             n += 1
+
+
+# ---- bags of arrays (offline tools, tests) --------------------------------------------------
+
+def write_bag(path: str | os.PathLike, streams: Mapping[str, tuple[str, Any, Any]], *,
+              storage: str = 'mcap', log_offset_ns: int = 0,
+              custom_data: Mapping[str, str] | None = None) -> Path:
+    """Write topics of numbers as a rosbag2 bag: with :class:`BagWriter` (MCAP, what the
+    recorder node writes) or, for ``storage='sqlite3'``, with ``rosbags`` (rosbag2's other
+    storage, for readers that must take both).
+
+    Parameters
+    ----------
+    path : path-like
+        Bag directory to create (must not exist).
+    streams : mapping
+        ``topic -> (msgtype, t [s], values)``. ``sensor_msgs/msg/FluidPressure`` and a type
+        with a ``data`` number (``std_msgs/msg/Float64``) take an array of values;
+        ``sensor_msgs/msg/JointState`` takes a dict ``entry name -> positions``. The first
+        two kinds with a header are stamped with ``t``. Log times are ``t`` plus
+        ``log_offset_ns``, written in time order across topics. A value that is NaN in a
+        Float64 stream is a message with a NaN (a dropped message is a missing time).
+    storage : {'mcap', 'sqlite3'}
+    """
+    if storage not in ('mcap', 'sqlite3'):
+        raise BagError(f'storage = {storage!r}: use mcap or sqlite3')
+    ts = typestore()
+    events = []
+    for topic, (msgtype, t, vals) in streams.items():
+        for k, ns in enumerate(int(round(tk * 1e9)) for tk in np.asarray(t, float)):
+            raw = ts.serialize_cdr(_message(ts, msgtype, ns, vals, k), msgtype)
+            events.append((ns + log_offset_ns, len(events), topic, msgtype, raw))
+    events.sort(key=lambda e: (e[0], e[1]))
+    path = Path(path)
+    if storage == 'sqlite3':
+        from rosbags.rosbag2 import StoragePlugin, Writer
+        with Writer(path, version=9, storage_plugin=StoragePlugin.SQLITE3) as w:
+            conns = {topic: w.add_connection(topic, msgtype, typestore=ts)
+                     for topic, (msgtype, _, _) in streams.items()}
+            for ns, _, topic, _, raw in events:
+                w.write(conns[topic], ns, raw)
+        return path
+    with BagWriter(path, compression='none', custom_data=custom_data) as w:
+        for topic, (msgtype, _, _) in streams.items():
+            w.add_topic(topic, msgtype, [qos_profile(history='keep_last', depth=10)])
+        for ns, _, topic, _, raw in events:
+            w.write(topic, ns, raw)
+    return path
+
+
+def _message(ts, msgtype: str, ns: int, vals, k: int):
+    """Message ``k`` of a stream of :func:`write_bag`, stamped ``ns`` where the type has a
+    header."""
+    cls = ts.types[msgtype]
+    if msgtype not in (FLUID_PRESSURE, JOINT_STATE):
+        return cls(data=float(vals[k]))
+    stamp = ts.types['builtin_interfaces/msg/Time'](sec=ns // 1_000_000_000,
+                                                    nanosec=ns % 1_000_000_000)
+    hdr = ts.types['std_msgs/msg/Header'](stamp=stamp, frame_id='')
+    if msgtype == FLUID_PRESSURE:
+        return cls(header=hdr, fluid_pressure=float(vals[k]), variance=0.0)
+    empty = np.zeros(0)
+    return cls(header=hdr, name=list(vals), position=np.array([float(v[k]) for v in
+                                                                 vals.values()]),
+               velocity=empty, effort=empty)
