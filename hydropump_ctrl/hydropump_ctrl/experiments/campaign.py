@@ -60,6 +60,13 @@ class Experiment:
     preroll : float
         Simulated time [s] run before the start and not recorded, for a closed loop to settle
         on its initial reference.
+    ctrl_first : dict
+        Controller parameters set before ``ctrl`` (a configuration from which ``ctrl``, set
+        one parameter at a time, passes the controller's checks).
+
+    A controller change in ``events`` takes effect at the control instant ``t`` exactly (the
+    graph pauses one control period before it, once the controller has answered there); a
+    simulator change is held from ``t``.
     """
 
     name: str
@@ -70,17 +77,28 @@ class Experiment:
     topics: list
     events: list = field(default_factory=list)
     preroll: float = 0.0
+    ctrl_first: dict = field(default_factory=dict)
 
     def bag(self, folder: str | Path) -> Path:
         """The run's bag in ``folder``: named after the experiment."""
         return Path(folder) / self.name
 
 
-def _operating_point(params: Params, current: float, seed: int = 0, **inputs) -> dict:
+def operating_point(params: Params, current: float, seed: int = 0, **inputs) -> dict:
     """The simulator's live parameters of an experiment: the whole operating point, since
     the graph keeps what the previous experiment left."""
     return {'initial_current': float(current), 'line.P_u': params.line.P_u,
             'line.xi_u': params.line.xi_u, 'sensors.seed': seed, **inputs}
+
+
+#: Set on the controller before an experiment's own excitation (:attr:`Experiment.ctrl_first`):
+#: the controller checks each parameter against the others, one at a time, so an excitation
+#: cannot always follow the one before directly (levels of 35..65 % after levels of
+#: 0.4..0.6 A, or the other way round). From this configuration, a sine of zero amplitude
+#: whose levels are not checked against each other, every excitation can, when its
+#: ``excitation.signal`` comes last.
+EXCITATION_BASE = {'excitation.amplitude': 0.0, 'excitation.offset': 0.0,
+                   'excitation.relative': False, 'excitation.signal': 'sine'}
 
 
 #: The nine identification sets: (step size, centre) of a growing-flow staircase in % of
@@ -103,13 +121,15 @@ def identification_experiments(params: Params, n: int = 9, dwell: float = 1.0,
             name=f'ident_{i + 1}',
             label=f'staircase {lo:g} -> {hi:g} % in {step:g} % steps, seed {i + 1}',
             duration=levels * dwell,
-            sim=_operating_point(params, current_for_displacement(params, lo / 100.0), i + 1),
-            ctrl={'controller.mode': 'open_loop', 'excitation.signal': 'staircase',
-                  'excitation.direction': 'up', 'excitation.unit': 'percent',
-                  'excitation.levels_min': lo, 'excitation.levels_max': hi,
-                  'excitation.n_levels': levels, 'excitation.dwell': dwell,
-                  'excitation.repeat': False},
-            topics=IDENT_TOPICS))
+            sim=operating_point(params, current_for_displacement(params, lo / 100.0), i + 1),
+            # Growing flow only: direction up, and no repeat (a staircase that starts again
+            # steps back down to its first level).
+            ctrl={'controller.mode': 'open_loop', 'excitation.direction': 'up',
+                  'excitation.unit': 'percent', 'excitation.levels_min': lo,
+                  'excitation.levels_max': hi, 'excitation.n_levels': levels,
+                  'excitation.dwell': dwell, 'excitation.repeat': False,
+                  'excitation.signal': 'staircase'},
+            topics=IDENT_TOPICS, ctrl_first=dict(EXCITATION_BASE)))
     return out
 
 
@@ -128,18 +148,18 @@ def closed_loop_experiments(params: Params, algorithms: Sequence[str] = ('emc', 
         base = {'controller.algorithm': alg}
         out += [
             Experiment(f'{alg}_flow_step', f'{alg.upper()}: flow step 30 -> 70 %', duration,
-                       _operating_point(params, trim_current(params, flow=q30)),
+                       operating_point(params, trim_current(params, flow=q30)),
                        {**base, 'controller.mode': 'flow', 'reference.flow': q30},
                        LOOP_TOPICS, [(t_step, 'controller', {'reference.flow': q70})],
                        preroll=preroll),
             Experiment(f'{alg}_aperture_step', f'{alg.upper()}: aperture 0.5 -> 0.4 at 25 bar',
-                       duration, _operating_point(params, trim_current(params, margin=2.5e6),
+                       duration, operating_point(params, trim_current(params, margin=2.5e6),
                                                   **{'line.xi_u': 0.5}),
                        {**base, 'controller.mode': 'margin', 'reference.margin': 2.5e6},
                        LOOP_TOPICS, [(t_step, 'simulator', {'line.xi_u': 0.4})],
                        preroll=preroll),
             Experiment(f'{alg}_margin_step', f'{alg.upper()}: margin 20 -> 25 bar', duration,
-                       _operating_point(params, trim_current(params, margin=2.0e6)),
+                       operating_point(params, trim_current(params, margin=2.0e6)),
                        {**base, 'controller.mode': 'margin', 'reference.margin': 2.0e6},
                        LOOP_TOPICS, [(t_step, 'controller', {'reference.margin': 2.5e6})],
                        preroll=preroll),
