@@ -24,5 +24,10 @@ setup(
             'hydropump-graph = hydropump_ros.graph:main',
             'hydropump-demo = hydropump_ros.campaign:main',
         ],
+        # What the pure `hydropump` command runs through the node graph (it looks the
+        # group up with importlib.metadata and never imports ROS itself).
+        'hydropump.runners': [
+            'record = hydropump_ros.record:run',
+        ],
     },
 )

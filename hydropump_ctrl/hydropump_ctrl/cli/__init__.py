@@ -6,6 +6,8 @@ One module per group of sub-commands:
 - :mod:`.fit` - ``fit`` (identification from bags);
 - :mod:`.calibrate` - ``calibrate``, ``validate`` (the plant model fitted to bags);
 - :mod:`.control` - ``design``, ``closed-loop``;
+- :mod:`.record` - ``record`` (a recording plan through the ROS nodes, found through an
+  entry point: nothing here imports ROS);
 - :mod:`._common` - what they share: :class:`~._common.UsageError`, the output folder,
   checks of option values.
 
@@ -22,10 +24,11 @@ import sys
 
 from hydropump_sim.errors import HydropumpError
 
-from . import calibrate, control, fit, plant
+from . import calibrate, control, fit, plant, record
 
 # Each adds its sub-commands; a command's ``func(args)`` returns the exit code.
-COMMANDS = (plant.register, fit.register, calibrate.register, control.register)
+COMMANDS = (plant.register, fit.register, calibrate.register, control.register,
+            record.register)
 
 __all__ = ['COMMANDS', 'build_parser', 'main']
 
