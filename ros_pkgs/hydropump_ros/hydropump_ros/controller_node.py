@@ -30,6 +30,8 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import FluidPressure, JointState
 from std_msgs.msg import Float64
 
+from hydropump_ctrl.control.embedded import PumpModel
+from hydropump_ctrl.control.excitation import ExcitationSignal
 from hydropump_ctrl.control.schema import ControllerConfig
 from hydropump_ctrl.control.supervisor import ControllerNodeConfig, STATE_KEYS, Supervisor
 from hydropump_sim.params import default_params_path
@@ -138,9 +140,27 @@ class ControllerNode(bridge.ExplainedParameters, LifecycleNode):
     def on_activate(self, state: State) -> TransitionCallbackReturn:
         result = super().on_activate(state)
         self.get_logger().info('active: publishing solenoid_current_cmd')
+        self._excitation_note()
         # Bumpless start from the measurements, at the first instant that has them all.
         self._run(self.sup.activate)
         return result
+
+    def _excitation_note(self) -> None:
+        """In open loop, say how long one pass of the excitation lasts and what follows:
+        nothing else tells when a pass ends (a staircase that starts again steps back down
+        to its first level, also with ``excitation.direction`` up)."""
+        cfg = self.sup.config
+        if cfg.controller.mode != 'open_loop':
+            return
+        x = cfg.excitation
+        length = ExcitationSignal(x, PumpModel.from_config(cfg.model)).duration
+        if math.isinf(length):
+            self.get_logger().info(f'open loop: a {x.signal} from the first update on, no end')
+            return
+        then = ('starts again (excitation.repeat true)' if x.repeat
+                else 'holds its last value (excitation.repeat false)')
+        self.get_logger().info(f'open loop: one {x.signal} pass of {length:g} s from the first '
+                               f'update, then it {then}')
 
     def on_deactivate(self, state: State) -> TransitionCallbackReturn:
         self._locked(self.sup.deactivate)
