@@ -31,6 +31,63 @@ def test_design_takes_the_identified_model_and_overrides(tmp_path, capsys):
     cfg = load_config(out)
     assert cfg.model.tau == 0.12 and cfg.model.t_d == 0.06 and cfg.emc.tau_control == 0.02
     assert cfg.delay_steps == 12
+    text = capsys.readouterr().out
+    assert _line(text, 'tau') == '0.12 s (eq. 19, --tau on the command line)'
+    assert _line(text, 't_d').startswith('0.06 s (eq. 19, --t-d on the command line')
+    assert 'G0 = 90.00 %: eq. 19, --G0 on the command line' in _line(text, 'gain')
+
+
+def _line(text: str, name: str) -> str:
+    """``value unit (source)`` of a model number in the design's printout."""
+    for ln in text.splitlines():
+        head, sep, tail = ln.partition('=')
+        if sep and head.strip() == name:
+            return ' '.join(tail.split())
+    raise AssertionError(f'no line for {name} in\n{text}')
+
+
+@pytest.fixture
+def slow_plant_file(tmp_path, params):
+    """A plant file whose pilot orifice is 15 % smaller (eq. 4, mu_a with h_a): by eq. 14,
+    tau = S_a (1 + K_c/K_a)/(mu_a sqrt(P_a_bar)), the growing flow is 1/0.85 slower."""
+    from hydropump_sim.schema import dump_ros_yaml
+    ac = params.actuator
+    slow = params.replace({'actuator.mu_a': 0.85 * ac.mu_a, 'actuator.h_a': 0.85 * ac.h_a})
+    path = tmp_path / 'calibrated.yaml'
+    path.write_text(dump_ros_yaml(slow.flat()))
+    return path, slow
+
+
+def test_design_of_a_plant_file_is_that_plant_s_model(tmp_path, capsys, slow_plant_file):
+    import math
+    path, p = slow_plant_file
+    out = tmp_path / 'c.yaml'
+    assert main(['design', '--params', str(path), '--out', str(out)]) == 0
+    text = capsys.readouterr().out
+    ac, sp = p.actuator, p.spool
+    eq14 = ac.S_a * (1 + sp.K_c / sp.K_a) / (ac.mu_a * math.sqrt(ac.P_a_bar))
+    eq15 = ac.S_a * (1 + sp.K_c / sp.K_a) / (ac.mu_a * math.sqrt(p.line.P_l_bar - ac.P_a_bar))
+    m = load_config(out).model
+    assert m.tau == pytest.approx(eq14, rel=0.02) and m.tau > 0.115
+    # P_l sits 2 kPa off P_l_bar (the load orifice's laminar regularisation): 1e-4.
+    assert m.tau_down == pytest.approx(eq15, rel=5e-4)
+    assert m.t_d == 0.055
+    assert _line(text, 'tau') == (f"{m.tau:g} s (63 % time of the fine model's 40 -> 60 % "
+                                  'step, calibrated.yaml)')
+    assert _line(text, 't_d').startswith('0.055 s (delay of the line_flow sensor, bench.yaml')
+    for name in ('tau_down', 'tau_z', 'Q_bar', 'C_l', 'flow_error_max'):
+        assert 'calibrated.yaml' in _line(text, name), name
+    assert 'calibrated.yaml' in out.read_text().split('/**:')[0]
+
+
+def test_design_with_a_profile_without_flow_delay(tmp_path, capsys):
+    out = tmp_path / 'c.yaml'
+    sensors = str(ROOT / 'config' / 'sensors.yaml')
+    assert main(['design', '--params', PUMP, '--profile', sensors, '--out', str(out)]) == 0
+    text = capsys.readouterr().out
+    assert load_config(out).model.t_d == 0.0
+    assert 'note: sensors.yaml has no delay on line_flow: t_d = 0' in text
+    assert _line(text, 't_d').startswith('0 s (delay of the line_flow sensor, sensors.yaml')
 
 
 @pytest.mark.parametrize('argv, words', [
@@ -50,6 +107,10 @@ def test_design_takes_the_identified_model_and_overrides(tmp_path, capsys):
      'params file /tmp/controller.txt: use a .yaml or .yml file name'),
     (['closed-loop', '--params', PUMP, '--set', 'controller.update_rate=300', '--no-table'],
      'controller period 0.00333333 s is not a multiple of dt_sim 0.001 s'),
+    (['design', '--params', PUMP, '--profile', '/nonexistent/bench.yaml', '--dry-run'],
+     '--profile /nonexistent/bench.yaml: no such file'),
+    (['design', '--params', PUMP, '--profile', str(ROOT / 'config' / 'controller.yaml'),
+      '--dry-run'], 'controller.yaml: not a sensor profile (controller.algorithm: unknown'),
 ])
 def test_user_errors_are_one_line(capsys, argv, words):
     assert main(argv) == 2
@@ -77,7 +138,11 @@ def test_design_from_a_fit_result_equals_design_with_its_numbers(tmp_path, capsy
         'joint': {'G0': 97.0, 'tau': 0.105, 'td': 0.052}}}))
     a, b = tmp_path / 'a.yaml', tmp_path / 'b.yaml'
     assert main(['design', '--params', PUMP, '--from-fit', str(res), '--out', str(a)]) == 0
-    assert 'joint fit' in capsys.readouterr().out
+    text = capsys.readouterr().out
+    assert _line(text, 'tau') == '0.105 s (eq. 19, joint fit of result.json)'
+    assert _line(text, 't_d').startswith('0.052 s (eq. 19, joint fit of result.json')
+    assert 'G0 = 97.00 %: eq. 19, joint fit of result.json' in _line(text, 'gain')
+    assert 'tau x eq. 15 / eq. 14' in _line(text, 'tau_down')
     assert main(['design', '--params', PUMP, '--G0', '97', '--tau', '0.105', '--t-d', '0.052',
                  '--out', str(b)]) == 0
     assert load_config(a) == load_config(b)

@@ -14,7 +14,6 @@ from hydropump_ctrl.control.emc import EMCController
 ROOT = Path(__file__).resolve().parents[2]
 
 
-
 def _chosen(cfg):
     T, e = cfg.period, cfg.emc
     return {k: math.exp(-T / v) for k, v in (('control', e.tau_control),
@@ -102,13 +101,14 @@ def test_delay_margin_is_the_delay_the_loop_tolerates(cfg):
     assert not stable(below + 2)
 
 
-def test_analysis_model_is_the_implementation(params):
+def test_analysis_model_is_the_implementation(params, bench):
     """The controller object, single-branch and far from every limit, against emc_flow_lti in
     the same closed loop with a discrete eq. 19 plant and an input disturbance step."""
     from hydropump_ctrl.control.design import design_config
-    cfg = design_config(params, base={
-        'model.tau_down': 0.1, 'model.tau_z': 0.0, 'limits.rate_limit': 1000.0,
-        'emc.disturbance_max': 0.01})
+    cfg = design_config(params, bench, base={
+        'model.tau_z': 0.0, 'limits.rate_limit': 1000.0, 'emc.disturbance_max': 0.01})
+    # One branch: the falling one as slow as the growing one.
+    cfg = cfg.replace({'model.tau_down': cfg.model.tau})
     T, N = cfg.period, cfg.delay_steps
     Q0, w = 0.5 * params.Q_max, 0.01 * params.Q_max
     a = math.exp(-T / cfg.model.tau)
@@ -159,3 +159,95 @@ def test_pi_margin_baseline_is_stable_over_the_aperture_range(cfg, params):
         L = C * (cfg.model.gain * dp / q) * P_rel
         m = dz.loop_margins(L)
         assert m.stable, (xi, dp)
+
+
+# --- the model group from the plant's own model -------------------------------------------
+
+# The fine model's load orifice has a laminar regularisation (dp_cr_u, 1 bar): at 30 bar of
+# margin it moves the nominal P_l by about 2 kPa from P_l_bar, so closed forms in P_l hold to
+# 1e-4 (the sqrt of 13 bar +- 2 kPa), not to the trim's 1e-10.
+P_L_REL = 5e-4
+
+
+def _closed_forms(p):
+    """The embedded model's numbers in closed form from a plant's parameters at its nominal
+    point (x_a = 0, P_l = P_l_bar, P_a = P_a_bar: eq. 12 with the preload of actuator.P_a_bar
+    and mu_u chosen for it), paper flow map with D1 (phi_s I_max = K_a x_a_max)."""
+    ac, sp = p.actuator, p.spool
+    Kc = 1.0 + sp.K_c / sp.K_a                # K_c kept (docs/reference.md I8)
+    Q_max = p.pump.V_p * p.pump.f_p
+    b_p = Q_max / p.pump.x_a_max              # eq. 13
+    return {
+        'gain': Q_max / sp.I_max,              # eq. 11: G0 = 100
+        'tau': ac.S_a * Kc / (ac.mu_a * math.sqrt(ac.P_a_bar)),                  # eq. 14
+        'tau_down': ac.S_a * Kc / (ac.mu_a * math.sqrt(p.line.P_l_bar - ac.P_a_bar)),  # 15
+        'tau_z': ac.S_a / b_p,                 # eq. 17
+        'rate': b_p * ac.mu_a * sp.x_c_max * math.sqrt(ac.P_a_bar) / ac.S_a,  # eqs. 4, 10
+        'Q_bar': 0.5 * Q_max,                  # eq. 11 at i_s = 0
+        'C_l': p.line.V_l / p.fluid.beta,      # eq. 9
+    }
+
+
+@pytest.fixture(scope='module')
+def slow_plant(params):
+    """The pilot orifice 15 % smaller (eq. 4: mu_a with h_a), a lower actuator pressure and a
+    larger line: by eq. 14 the growing flow 1/(0.85 sqrt(0.8)) = 1.32 x slower."""
+    ac = params.actuator
+    return params.replace({'actuator.mu_a': 0.85 * ac.mu_a, 'actuator.h_a': 0.85 * ac.h_a,
+                           'actuator.P_a_bar': 1.6e6, 'line.V_l': 0.8e-3})
+
+
+@pytest.mark.parametrize('which', ['reference', 'slow'])
+def test_design_takes_every_model_number_from_the_plant(params, slow_plant, bench, which):
+    p = params if which == 'reference' else slow_plant
+    truth = _closed_forms(p)
+    m = dz.design_config(p, bench).model
+    # tau is the fine model's 63 % time, which folds in the fast modes' fraction of a ms
+    # (the reference pump: 100.4 ms, docs/reference.md A2): eq. 14 within 2 %.
+    assert m.tau == pytest.approx(truth['tau'], rel=0.02)
+    assert m.tau_down == pytest.approx(truth['tau_down'], rel=P_L_REL)
+    assert m.tau_z == pytest.approx(truth['tau_z'], rel=1e-12)
+    assert m.gain == pytest.approx(truth['gain'], rel=1e-12)
+    assert m.Q_bar == pytest.approx(truth['Q_bar'], rel=1e-9)
+    assert m.Q_max == pytest.approx(2.0 * truth['Q_bar'], rel=1e-12)
+    assert m.C_l == pytest.approx(truth['C_l'], rel=1e-12)
+    assert m.flow_error_max / m.tau == pytest.approx(truth['rate'], rel=P_L_REL)
+    # The bench's flow sensors: the 55 ms of the paper's t_d.
+    assert m.t_d == pytest.approx(0.055, abs=1e-12)
+    if which == 'reference':
+        assert m.tau == pytest.approx(0.1004, abs=1e-3)
+    else:
+        # Not the paper's 0.1 s: the plant's own, 1.32 x slower.
+        assert m.tau == pytest.approx(0.1 / (0.85 * math.sqrt(0.8)), rel=0.02)
+        # The PI's SIMC tuning and reference model follow the same numbers.
+        cfg = dz.design_config(p, bench)
+        assert cfg.pi_flow.reference_tau == m.tau
+        assert cfg.pi_flow.reference_tau_down == m.tau_down
+
+
+def test_t_d_is_the_delay_of_the_flow_sensor_fed_back(params):
+    from hydropump_sim.sensors import SensorProfile, SensorSpec
+    prof = SensorProfile({'line_flow': SensorSpec(delay=0.03),
+                          'pump_flow': SensorSpec(delay=0.07)})
+    assert dz.design_config(params, prof).model.t_d == 0.03
+    cfg = dz.design_config(params, prof, base={'controller.flow_signal': 'pump_flow'})
+    assert cfg.model.t_d == 0.07 and cfg.delay_steps == 14
+    assert cfg.pi_flow.reference_delay == 0.07
+    # No flow delay (ideal sensors): t_d 0, said so.
+    pm = dz.plant_model(params, SensorProfile({}), profile_name='ideal.yaml')
+    assert pm.values['t_d'] == 0.0
+    assert any('ideal.yaml has no delay on line_flow' in n for n in pm.notes)
+
+
+def test_identified_numbers_replace_the_plant_s_and_say_so(params):
+    ac = params.actuator
+    pm = dz.plant_model(params, None, identified={
+        'G0': (90.0, 'fit A'), 'tau': (0.12, 'fit B'), 't_d': (0.05, 'fit C')})
+    v, src = pm.values, pm.sources
+    assert v['gain'] == pytest.approx(0.9 * params.Q_max / params.spool.I_max, rel=1e-12)
+    assert v['tau'] == 0.12 and v['t_d'] == 0.05
+    # tau_down keeps the plant's eq. 15 / eq. 14 ratio, sqrt(P_a / (P_l - P_a)).
+    ratio = math.sqrt(ac.P_a_bar / (params.line.P_l_bar - ac.P_a_bar))
+    assert v['tau_down'] == pytest.approx(0.12 * ratio, rel=P_L_REL)
+    assert 'fit A' in src['gain'] and src['tau'] == 'fit B' and src['t_d'] == 'fit C'
+    assert 'eq. 15 / eq. 14' in src['tau_down']

@@ -27,8 +27,8 @@ def test_committed_params_file_is_a_valid_ros_params_file(cfg, params):
     assert cfg.period == pytest.approx(0.005) and cfg.delay_steps == 11
 
 
-def test_committed_file_matches_a_fresh_design(cfg, params):
-    fresh = design_config(params)
+def test_committed_file_matches_a_fresh_design(cfg, params, bench):
+    fresh = design_config(params, bench)
     for key, val in fresh.flat().items():
         got = cfg.flat()[key]
         if isinstance(val, float):

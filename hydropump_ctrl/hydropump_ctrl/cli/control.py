@@ -1,7 +1,9 @@
 """``hydropump design`` and ``hydropump closed-loop``: the control sub-commands.
 
-``design`` builds the controller from the simplified model and eq. 19, prints the gains, the
-closed-loop eigenvalues and the loop margins, and writes ``config/controller.yaml``.
+``design`` builds the controller from the plant's own model (its fine model's step, its
+linearisation, eqs. 11, 15 and 17) and the sensor profile's flow delay, or from eq. 19 numbers
+where given; it prints every model number with where it came from, the gains, the closed-loop
+eigenvalues and the loop margins, and writes ``config/controller.yaml``.
 ``closed-loop`` runs the judged cases on the fine-model simulator with the bench sensors and
 plots EMC beside the PI baseline.
 """
@@ -34,24 +36,36 @@ PARAMS_SUFFIXES = ('.yaml', '.yml')
 
 # --- design -----------------------------------------------------------------------------------
 
-def design_report(cfg, params) -> str:
-    """Gains, eigenvalues and margins of a controller configuration, as text."""
+# Units of the model group, as printed.
+MODEL_UNITS = {'gain': 'm^3/(s A)', 'I_nominal': 'A', 'I_max': 'A', 'Q_bar': 'm^3/s',
+               'Q_max': 'm^3/s', 'tau': 's', 'tau_down': 's', 'tau_z': 's', 't_d': 's',
+               'flow_error_max': 'm^3/s', 'C_l': 'm^3/Pa', 'gamma_u': '-'}
+
+
+def model_lines(cfg, sources: dict) -> list[str]:
+    """One line per model number: its value in the configuration and where it came from."""
+    m = cfg.model
+    out = []
+    for name, unit in MODEL_UNITS.items():
+        val = getattr(m, name)
+        extra = ''
+        if name == 't_d':
+            n = cfg.delay_steps
+            extra = f'; {n} period{"s" * (n != 1)} of {cfg.period * 1e3:g} ms'
+        elif name == 'flow_error_max':
+            extra = f'; {val / m.Q_max * 100:.1f} % FS'
+        out.append(f'  {name:14s} = {val:<11.5g} {unit:9s} ({sources.get(name, "?")}{extra})')
+    return out
+
+
+def design_report(cfg, params, sources: dict) -> str:
+    """Gains, eigenvalues and margins of a controller configuration, as text; ``sources``
+    says where each model number came from."""
     from ..control import design as dz
     T, m, e = cfg.period, cfg.model, cfg.emc
     g = dz.emc_gains(cfg)
-    lines = ['== Embedded model (eq. 19 identified, simplified model around it) ==']
-    G0 = m.gain * params.spool.I_max / m.Q_max * 100.0
-    for name, val, unit, note in (
-            ('gain', m.gain, 'm^3/(s A)', f'eq. 19 G0 = {G0:.1f} (eq. 11: V_p f_p / I_max)'),
-            ('tau', m.tau, 's', 'growing flow, eq. 19'),
-            ('tau_down', m.tau_down, 's', 'falling flow, eq. 15 / eq. 14 ratio'),
-            ('tau_z', m.tau_z, 's', 'zero of eq. 17, S_a/b_p'),
-            ('t_d', m.t_d, 's', f'measurement delay, {g.N} periods of {T * 1e3:g} ms'),
-            ('flow_error_max', m.flow_error_max, 'm^3/s',
-             f'spool stroke limit, {m.flow_error_max / m.Q_max * 100:.1f} % FS; largest rate '
-             f'{m.flow_error_max / m.tau / m.Q_max * 100:.0f} % FS/s'),
-            ('C_l', m.C_l, 'm^3/Pa', 'line capacitance V_l/beta')):
-        lines.append(f'  {name:15s} {val:12.5g} {unit:10s} {note}')
+    lines = ['== Embedded model: every number and where it comes from ==']
+    lines += model_lines(cfg, sources)
     lines.append('')
     lines.append(f'== Eigenvalues (chosen) and gains, T = {T * 1e3:g} ms ==')
 
@@ -91,7 +105,8 @@ def design_report(cfg, params) -> str:
     lines.append(f'  chosen: control {g.poles["control"]:.4f}, estimator '
                  f'{g.poles["estimator_fast"]:.4f}, {g.poles["estimator_slow"]:.4f}')
     lines.append('')
-    lines.append('== Loop margins (loop broken at the command; 55 ms delay in the loop) ==')
+    lines.append(f'== Loop margins (loop broken at the command; {m.t_d * 1e3:g} ms delay in the '
+                 'loop) ==')
 
     def mrow(name, mg):
         return (f'  {name:44s} GM {mg.gain_margin:5.1f} dB  PM {mg.phase_margin:5.1f} deg  '
@@ -147,34 +162,91 @@ def fopdt_from_fit(path: str) -> tuple[float, float, float, str]:
     return float(vals[0]), float(vals[1]), float(vals[2]), which
 
 
-def cmd_design(args) -> int:
-    from ..control.design import design_config
+def default_profile() -> Path:
+    """The sensor profile shipped beside the reference plant file: config/bench.yaml."""
+    from hydropump_sim.params import default_params_path
+    return default_params_path().with_name(BENCH_YAML)
+
+
+def design_profile(args, params):
+    """``(profile, path)`` of ``--profile`` (default: the shipped config/bench.yaml)."""
+    from hydropump_sim.schema import ParamError
+    from hydropump_sim.sensors import load_profile
+    path = Path(args.profile) if args.profile else default_profile()
+    what = f'--profile {path}' if args.profile else f'the default sensor profile {path}'
+    if not path.exists():
+        raise UsageError(f'{what}: no such file')
+    if path.is_dir():
+        raise UsageError(f'{what}: is a folder, expected a sensor profile (.yaml)')
+    profile = load_profile(path)
+    # What is not a sensor is a plant parameter the profile sets (the dither): a file of
+    # another kind (a controller's, say) shows here, rather than as a silent t_d = 0.
+    try:
+        params.replace(profile.plant_overrides or {})
+    except ParamError as exc:
+        more = f' and {len(exc.lines) - 1} more' if len(exc.lines) > 1 else ''
+        raise UsageError(f'{what}: not a sensor profile ({exc.lines[0]}{more})') from None
+    return profile, path
+
+
+def identified_numbers(args) -> dict:
+    """eq. 19 numbers that replace the plant's: from ``--from-fit``, else ``--G0``, ``--tau``,
+    ``--t-d``; each ``name -> (value, source)``."""
+    opts = {'G0': '--G0', 'tau': '--tau', 't_d': '--t-d'}
+    units = {'G0': '% per current range', 'tau': 's', 't_d': 's'}
     if args.from_fit:
-        args.G0, args.tau, args.t_d, which = fopdt_from_fit(args.from_fit)
-        print(f'eq. 19 from {args.from_fit} ({which})')
-    positive(args.G0, '--G0', '% per current range')
-    positive(args.tau, '--tau', 's')
-    positive(args.t_d, '--t-d', 's', zero=True)
-    base = overrides(args.set)
+        G0, tau, t_d, which = fopdt_from_fit(args.from_fit)
+        vals = {'G0': G0, 'tau': tau, 't_d': t_d}
+        src = {k: f'eq. 19, {which} of {Path(args.from_fit).name}' for k in vals}
+    else:
+        vals = {k: getattr(args, k) for k in opts if getattr(args, k) is not None}
+        src = {k: f'eq. 19, {opts[k]} on the command line' for k in vals}
+    for k, v in vals.items():
+        positive(v, opts[k], units[k], zero=k == 't_d')
+    return {k: (v, src[k]) for k, v in vals.items()}
+
+
+def cmd_design(args) -> int:
+    from ..control.design import design_config, plant_model
+    from ..control.schema import General
     t0 = time.perf_counter()
+    identified = identified_numbers(args)
+    base = overrides(args.set)
     plant = plant_file(args)
     out = output_file(args.out or plant.with_name(CONTROLLER_YAML), PARAMS_SUFFIXES,
                       'params file', create=not args.dry_run)
     params = load_params(plant)
-    cfg = design_config(params, G0=args.G0, tau=args.tau, t_d=args.t_d, base=base)
-    print(f'plant parameters: {plant}; eq. 19: G0 = {args.G0:g}, tau = {args.tau:g} s, '
-          f't_d = {args.t_d:g} s\n', flush=True)
-    print(design_report(cfg, params))
+    profile, prof_path = design_profile(args, params)
+    signal = base.get('controller.flow_signal', General().flow_signal)
+    pm = plant_model(params, profile, identified=identified, flow_signal=signal,
+                     plant_name=plant.name, profile_name=prof_path.name)
+    cfg = design_config(params, base=base, model=pm)
+    sources = dict(pm.sources)
+    for key in base:
+        if key.startswith('model.'):
+            sources[key[len('model.'):]] = f'--set {key}'
+    print(f'plant: {plant}; sensor profile: {prof_path}'
+          + (f'; eq. 19 from {args.from_fit}' if args.from_fit else ''))
+    for note in pm.notes:
+        print(f'note: {note}')
+    print(flush=True)
+    print(design_report(cfg, params, sources))
     if args.dry_run:
         print(f'\n(dry run: {out} not written)')
         return 0
-    header = (f'# Controller parameters (ROS 2 params file, SI units), written by '
-              f'`hydropump design`\n# from {plant.name} and eq. 19 (G0 {args.G0:g}, tau '
-              f'{args.tau:g} s, t_d {args.t_d:g} s). Load with\n'
-              '# hydropump_ctrl.control.schema.load_config(path); docs/control.md explains '
-              'every group.\n# model.* is the embedded model; emc.* are closed-loop '
-              'eigenvalues (time constants), the\n# EMC gains follow from them; pi.* is the '
-              'baseline with control_toolbox names.')
+    m = cfg.model
+    header = '\n'.join([
+        '# Controller parameters (ROS 2 params file, SI units), written by `hydropump design`',
+        f"# from {plant.name} (the plant's own model) and {prof_path.name} (the flow delay):",
+        f'#   G0 {pm.G0:.2f} %: {sources["gain"].partition(": ")[2] or sources["gain"]}',
+        f'#   tau {m.tau:.5g} s: {sources["tau"]}',
+        f'#   tau_down {m.tau_down:.5g} s: {sources["tau_down"]}',
+        f'#   t_d {m.t_d:.5g} s: {sources["t_d"]}',
+        '# Load with hydropump_ctrl.control.schema.load_config(path); docs/control.md explains '
+        'every group.',
+        '# model.* is the embedded model; emc.* are closed-loop eigenvalues (time constants), '
+        'the',
+        '# EMC gains follow from them; pi.* is the baseline with control_toolbox names.'])
     out.write_text(cfg.to_ros_yaml(header))
     print(f'\nwrote {out} ({time.perf_counter() - t0:.1f} s)')
     return 0
@@ -198,8 +270,8 @@ def _load_setup(args):
     elif args.config:
         raise UsageError(f'--config {cfg_path}: controller parameters not found')
     else:
-        cfg = design_config(params)
-        source = 'designed from the plant (no controller.yaml found)'
+        cfg = design_config(params, profile)
+        source = 'designed from the plant and the sensor profile (no controller.yaml found)'
     sets = overrides(args.set)
     if sets:
         cfg = cfg.replace(sets)
@@ -303,14 +375,18 @@ def cmd_closed_loop(args) -> int:
 
 def register(sub) -> None:
     """Add ``design`` and ``closed-loop`` to the ``hydropump`` command line."""
-    d = sub.add_parser('design', help='EMC and PI design from the simplified model and eq. 19: '
-                       'gains, eigenvalues, margins; writes config/controller.yaml')
-    add_params_option(d)
-    d.add_argument('--G0', type=float, default=100.0, help='eq. 19 DC gain (default 100)')
-    d.add_argument('--tau', type=float, default=0.1, help='eq. 19 time constant [s] '
-                   '(default 0.1)')
-    d.add_argument('--t-d', dest='t_d', type=float, default=0.055,
-                   help='eq. 19 delay [s] (default 0.055)')
+    d = sub.add_parser('design', help="EMC and PI design from the plant's own model and the "
+                       "sensor profile's flow delay: gains, eigenvalues, margins; writes "
+                       'config/controller.yaml')
+    add_params_option(d, 'whose model the design takes')
+    d.add_argument('--profile', help='sensor profile whose flow-sensor delay is t_d (default: '
+                   'config/bench.yaml as shipped)')
+    d.add_argument('--G0', type=float, help='eq. 19 DC gain [%% per current range] in place '
+                   "of the plant's")
+    d.add_argument('--tau', type=float, help='eq. 19 time constant [s] in place of the '
+                   "plant's 63 %% time")
+    d.add_argument('--t-d', dest='t_d', type=float,
+                   help="eq. 19 delay [s] in place of the profile's flow delay")
     d.add_argument('--from-fit', metavar='RESULT.json',
                    help='take G0, tau, t_d from a `hydropump fit` result (the joint fit where '
                         'there is one, else the pooled mean); overrides --G0 --tau --t-d')

@@ -366,38 +366,170 @@ def closed_loop_eigenvalues(cfg: ControllerConfig, branch: str = 'up') -> np.nda
 
 # --- design from the plant ------------------------------------------------------------------
 
-def model_from_plant(params, G0: float = 100.0, tau: float = 0.1, t_d: float = 0.055
-                     ) -> dict[str, float]:
-    """The ``model`` group from the identified eq. 19 and the simplified model.
+# The up-step whose 63 % time is the plant's growing-flow tau: the reference step of the paper
+# (docs/reference.md A2), centred on the nominal point and small enough that the spool stays
+# inside its stroke (x_c 3 of 4 mm on the reference pump), so the figure is the plant's slow
+# dynamics and not its stroke limit.
+TAU_STEP = (0.4, 0.6)
 
-    ``G0`` [%/(i_s/I_max)], ``tau`` [s] and ``t_d`` [s] are the paper's identification (eq. 19,
-    growing flow). The simplified model (``params``, nominal operating point) adds what eq. 19
-    leaves out: the falling-flow time constant, in the ratio of eq. 15 to eq. 14 (with ``K_c``,
-    docs/reference.md I8); the zero ``tau_z = S_a/b_p`` of eq. 17; the spool stroke limit, as
-    the largest stroke rate ``b_p mu_a x_c_max sqrt(P_a)/S_a`` (eqs. 4, 10) times ``tau``; the
-    line capacitance ``V_l/beta`` and the load exponent of eq. 9.
+
+@dataclass(frozen=True)
+class PlantModel:
+    """The ``model`` group designed from a plant, with where each number came from.
+
+    ``values`` are the ``model.*`` parameters (SI), ``sources`` a short text per parameter
+    (``'63 % time of the fine model's 40 -> 60 % step, pump.yaml'``) and ``notes`` what the
+    user should know about the design (e.g. a profile without a flow delay).
+    """
+
+    values: dict
+    sources: dict
+    notes: tuple = ()
+
+    @property
+    def G0(self) -> float:
+        """The flow gain in the paper's units: % of ``V_p f_p`` per ``I_max`` of current."""
+        return self.values['gain'] * self.values['I_max'] / self.values['Q_max'] * 100.0
+
+
+def step_time_constant(params, d0: float = TAU_STEP[0], d1: float = TAU_STEP[1]) -> float:
+    """63 % time [s] of the fine model's line flow after a current step between the
+    displacements ``d0`` and ``d1`` (0..1), without dither, from the equilibrium at ``d0``.
+
+    This is what eq. 19 identifies on the plant's own step: the FOPDT fit of the reference
+    pump's 40 -> 60 % step gives tau 100.41 ms and t_d 0.36 ms, and its 63 % time is
+    100.38 ms (docs/reference.md). The fast modes' lag of a fraction of a millisecond is
+    folded into it, as a fit folds it into tau.
+    """
+    from hydropump_sim.linear import eq14_time_constant
+    from hydropump_sim.metrics import step_figures
+    from hydropump_sim.scaling import current_for_displacement
+    from hydropump_sim.simulate import simulate
+    from hydropump_sim.trim import equilibrium
+    plant = params.replace({'input.dither_amp': 0.0}) if params.input.dither_amp else params
+    I0, I1 = (float(i) for i in current_for_displacement(plant, [d0, d1]))
+    t_step = 0.01
+    # Eight times the eq. 14 estimate: the 63 % point lies well inside, whatever the plant.
+    guess = eq14_time_constant(plant, equilibrium(plant, I0), 'pos' if d1 > d0 else 'neg',
+                               keep_Kc=True)
+    res = simulate(plant, t_step + 8.0 * guess, lambda t: np.where(t < t_step, I0, I1),
+                   dt_out=1.0e-4)
+    t63 = step_figures(res.t, res.q_l, t_step, final=equilibrium(plant, I1).q_l).t63
+    if not math.isfinite(t63):
+        from hydropump_sim.errors import InputError
+        raise InputError(f'the fine model never reached 63 % of its {d0 * 100:.0f} -> '
+                         f'{d1 * 100:.0f} % step')
+    return float(t63)
+
+
+def flow_dc_gain(params) -> float:
+    """Static gain ``dq_l/di_s`` [m^3/(s A)] of the fine model linearised at the nominal
+    point (eq. 11 when the plant keeps D1, ``V_p f_p / I_max``; leakage or the consistent
+    flow map show here)."""
+    from hydropump_sim.linear import linearize
+    from hydropump_sim.model import INPUTS, OUTPUTS
+    lm = linearize(params, branch='pos')
+    i, o = INPUTS.index('i_s'), OUTPUTS.index('q_l')
+    return float(lm.D[o, i] - lm.C[o] @ np.linalg.solve(lm.A, lm.B[:, i]))
+
+
+def plant_model(params, profile=None, *, identified: dict | None = None,
+                flow_signal: str = 'line_flow', plant_name: str = 'the plant file',
+                profile_name: str = 'the sensor profile') -> PlantModel:
+    """The ``model`` group of the embedded model from the plant's own model.
+
+    Every number comes from ``params`` (the fine model at its nominal point) or from the
+    sensor ``profile``, never from the paper's eq. 19 figures:
+
+    - ``gain``: the static gain of the fine model's linearisation (eq. 11);
+    - ``tau``: the 63 % time of the fine model's 40 -> 60 % up-step (:func:`step_time_constant`);
+    - ``tau_down``: eq. 15 keeping ``K_c`` (docs/reference.md I8) at the nominal point, the pole
+      of the falling branch (the down-step's 63 % time mixes it with the zero);
+    - ``tau_z``: the zero ``S_a/b_p`` of eq. 17;
+    - ``flow_error_max``: the spool stroke limit, the largest stroke rate
+      ``b_p mu_a x_c_max sqrt(P_a)/S_a`` (eqs. 4, 10) times ``tau``;
+    - ``t_d``: the delay of the profile's ``flow_signal`` sensor (0 without a profile);
+    - ``Q_bar``, ``Q_max``, ``I_nominal``, ``I_max``, ``C_l = V_l/beta``, ``gamma_u``.
+
+    ``identified`` replaces ``G0`` [%], ``tau`` [s] or ``t_d`` [s] by identified values, each
+    as ``(value, source)`` (eq. 19 of a fit, or given by hand). An identified ``tau`` carries
+    ``tau_down`` in the plant's ratio eq. 15 / eq. 14 (both scale with ``1/mu_a``) and keeps
+    the plant's stroke rate.
     """
     from hydropump_sim.linear import eq14_time_constant, pilot_root, zero_time_constant
     from hydropump_sim.trim import equilibrium
+    ident = dict(identified or {})
     eq = equilibrium(params)
-    ratio = (eq14_time_constant(params, eq, 'neg', keep_Kc=True)
-             / eq14_time_constant(params, eq, 'pos', keep_Kc=True))
-    ac = params.actuator
-    rate = params.b_p * ac.mu_a * params.spool.x_c_max * pilot_root(params, eq, 'pos') / ac.S_a
-    return {
-        'gain': G0 / 100.0 * params.Q_max / params.spool.I_max,
-        'I_nominal': params.I_nominal,
-        'I_max': params.spool.I_max,
-        'Q_bar': float(eq.Q_p),
-        'Q_max': params.Q_max,
-        'tau': tau,
-        'tau_down': tau * ratio,
-        'tau_z': zero_time_constant(params),
-        't_d': t_d,
-        'flow_error_max': rate * tau,
-        'C_l': params.line.V_l / params.fluid.beta,
-        'gamma_u': params.line.gamma_u,
-    }
+    ac, sp = params.actuator, params.spool
+    values, sources, notes = {}, {}, []
+    of = f', {plant_name}'
+    if 'G0' in ident:
+        G0, src = ident['G0']
+        values['gain'] = G0 / 100.0 * params.Q_max / sp.I_max
+        sources['gain'] = f'G0 = {G0:.2f} %: {src}'
+    else:
+        # In the paper's 0.01 % of G0: the linearisation's finite differences are good to
+        # 1e-10, and a design must not move with the last digits of the plant library.
+        G0 = round(flow_dc_gain(params) * sp.I_max / params.Q_max * 100.0, 2)
+        values['gain'] = G0 / 100.0 * params.Q_max / sp.I_max
+        sources['gain'] = (f'G0 = {G0:.2f} %: static gain i_s -> q_l of the fine model '
+                           f'linearised at the nominal point (eq. 11){of}')
+    values['I_nominal'] = params.I_nominal
+    sources['I_nominal'] = f'eq. 2, I_min + I_max{of}'
+    values['I_max'] = sp.I_max
+    sources['I_max'] = f'eq. 2{of}'
+    values['Q_bar'] = float(eq.Q_p)
+    sources['Q_bar'] = f"the fine model's equilibrium flow at I_nominal (eq. 8){of}"
+    values['Q_max'] = params.Q_max
+    sources['Q_max'] = f'V_p f_p{of}'
+    tau_up = eq14_time_constant(params, eq, 'pos', keep_Kc=True)
+    tau_dn = eq14_time_constant(params, eq, 'neg', keep_Kc=True)
+    if 'tau' in ident:
+        values['tau'], src = ident['tau']
+        sources['tau'] = src
+        values['tau_down'] = values['tau'] * tau_dn / tau_up
+        sources['tau_down'] = f'tau x eq. 15 / eq. 14 = {tau_dn / tau_up:.4f} (with K_c){of}'
+    else:
+        # Four digits (0.1 ms here): the step is simulated on a 0.1 ms grid, and the design
+        # must not move with the integrator's last digits.
+        values['tau'] = float(f'{step_time_constant(params):.4g}')
+        sources['tau'] = (f"63 % time of the fine model's {TAU_STEP[0] * 100:.0f} -> "
+                          f'{TAU_STEP[1] * 100:.0f} % step{of}')
+        values['tau_down'] = tau_dn
+        sources['tau_down'] = (f'eq. 15 with K_c, S_a (1 + K_c/K_a)/(mu_a sqrt(P_l - P_a)) at '
+                               f'the nominal point{of}')
+    values['tau_z'] = zero_time_constant(params)
+    sources['tau_z'] = f'zero of eq. 17, S_a/b_p{of}'
+    if 't_d' in ident:
+        values['t_d'], sources['t_d'] = ident['t_d']
+    elif profile is None:
+        values['t_d'] = 0.0
+        sources['t_d'] = 'no sensor profile'
+        notes.append('no sensor profile: t_d = 0, the embedded delay line keeps one period')
+    else:
+        sensor = profile.spec(flow_signal)
+        values['t_d'] = float(sensor.delay)
+        sources['t_d'] = f'delay of the {flow_signal} sensor, {profile_name}'
+        if sensor.delay <= 0.0:
+            notes.append(f'{profile_name} has no delay on {flow_signal}: t_d = 0, the embedded '
+                         'delay line keeps one period')
+        if sensor.filter_tau > 0.0:
+            notes.append(f'{profile_name} filters {flow_signal} ({sensor.filter_tau:g} s): '
+                         'that lag is not in t_d')
+    rate = params.b_p * ac.mu_a * sp.x_c_max * pilot_root(params, eq, 'pos') / ac.S_a
+    values['flow_error_max'] = rate * values['tau']
+    sources['flow_error_max'] = (f'spool stroke limit: b_p mu_a x_c_max sqrt(P_a)/S_a (eqs. 4, '
+                                 f'10) = {rate / params.Q_max * 100:.0f} % FS/s, times tau{of}')
+    values['C_l'] = params.line.V_l / params.fluid.beta
+    sources['C_l'] = f'line capacitance V_l/beta (eq. 9){of}'
+    values['gamma_u'] = params.line.gamma_u
+    sources['gamma_u'] = f'load law exponent (eq. 9){of}'
+    return PlantModel(values, sources, tuple(notes))
+
+
+def model_from_plant(params, profile=None, **kw) -> dict[str, float]:
+    """The ``model`` group (values only) of :func:`plant_model`."""
+    return plant_model(params, profile, **kw).values
 
 
 def pi_flow_tuning(model: dict, T: float) -> tuple[float, float]:
@@ -445,29 +577,35 @@ def pi_margin_tuning(params, model: dict, T: float, apertures=(0.08, 0.96),
     return Kc, Kc / Ti
 
 
-def design_config(params, G0: float = 100.0, tau: float = 0.1, t_d: float = 0.055,
-                  base: dict | None = None) -> ControllerConfig:
-    """A complete controller configuration designed from the plant and eq. 19.
+def design_config(params, profile=None, *, identified: dict | None = None,
+                  base: dict | None = None, model: PlantModel | None = None
+                  ) -> ControllerConfig:
+    """A complete controller configuration designed from the plant's own model.
 
-    ``base`` (dotted names) overrides the defaults, e.g. other eigenvalues; the model group
-    and the PI gains come from the design unless ``base`` gives them.
+    The ``model`` group is :func:`plant_model` of ``params`` and the sensor ``profile`` (its
+    flow-sensor delay is ``t_d``), with ``identified`` eq. 19 numbers in place of the
+    plant's where given; pass ``model`` to reuse one already made. ``base`` (dotted names)
+    overrides the defaults, e.g. other eigenvalues; the model group and the PI gains come from
+    the design unless ``base`` gives them.
     """
-    from .schema import config_from_dict
-    model = model_from_plant(params, G0, tau, t_d)
-    probe = config_from_dict({'model': model, **(base or {})},
-                             current_limits=params.I_limits)
+    from .schema import config_from_dict, General
+    if model is None:
+        signal = (base or {}).get('controller.flow_signal', General().flow_signal)
+        model = plant_model(params, profile, identified=identified, flow_signal=signal)
+    m = model.values
+    probe = config_from_dict({'model': m, **(base or {})}, current_limits=params.I_limits)
     T = probe.period
-    p_f, i_f = pi_flow_tuning(model, T)
-    p_m, i_m = pi_margin_tuning(params, model, T)
+    p_f, i_f = pi_flow_tuning(m, T)
+    p_m, i_m = pi_margin_tuning(params, m, T)
     lo, hi = params.I_limits
-    values = {f'model.{k}': v for k, v in model.items()}
+    values = {f'model.{k}': v for k, v in m.items()}
     values.update({
         'limits.current_min': lo, 'limits.current_max': hi,
         'limits.safe_current': params.current_range[0],
-        'reference.flow': float(model['Q_bar']),
+        'reference.flow': float(m['Q_bar']),
         'pi.flow.p': p_f, 'pi.flow.i': i_f,
-        'pi.flow.reference_tau': tau, 'pi.flow.reference_tau_down': model['tau_down'],
-        'pi.flow.reference_delay': t_d,
+        'pi.flow.reference_tau': m['tau'], 'pi.flow.reference_tau_down': m['tau_down'],
+        'pi.flow.reference_delay': m['t_d'],
         'pi.margin.p': p_m, 'pi.margin.i': i_m,
         'pi.flow.u_clamp_min': lo, 'pi.flow.u_clamp_max': hi,
         'pi.margin.u_clamp_min': lo, 'pi.margin.u_clamp_max': hi,
