@@ -1,15 +1,13 @@
-"""The target table of docs/control.md on the fine-model simulator with the bench sensors
-(55 ms flow delay, noise, quantisation) and the table's 4 mA, 150 Hz dither, fixed seeds,
-controllers designed from the simplified model and eq. 19 only (config/controller.yaml).
-
-The table was measured under that dither; config/bench.yaml now has a 2 mA, 400 Hz one,
-which the spool filters out, so the plant is slower by up to 10 ms of tau and the worst
-combined corner settles in 0.93 s instead of 0.8 s (docs/control.md says so)."""
+"""The target table of docs/control.md on the fine-model simulator with the bench profile
+config/bench.yaml exactly as shipped (55 ms flow delay, noise, quantisation, its 2 mA, 400 Hz
+dither), fixed seeds, controllers designed from the plant's own model and that profile only
+(config/controller.yaml)."""
 
 from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from hydropump_ctrl.control.emc import EMCController
 from hydropump_ctrl.control.pi import PIController
@@ -19,27 +17,24 @@ from hydropump_ctrl.experiments.closed_loop import PlantVariation, run_closed_lo
 ROOT = Path(__file__).resolve().parents[2]
 
 
-
-
-@pytest.fixture(scope='module')
-def bench(bench):
-    """The bench profile with the target table's dither."""
-    import dataclasses
-    return dataclasses.replace(bench, plant_overrides={**bench.plant_overrides,
-                                                       'input.dither_amp': 0.004,
-                                                       'input.dither_freq': 150.0})
-
-
 @pytest.fixture(scope='module')
 def FS(params):
     return params.Q_max
 
 
 def test_bench_profile_is_the_judged_one(bench, cfg):
-    assert bench.spec('line_flow').delay == pytest.approx(0.055)
-    assert bench.plant_overrides['input.dither_freq'] == pytest.approx(150.0)
-    # The design knows only eq. 19's delay, as the bench does: 11 periods at 200 Hz.
-    assert cfg.model.t_d == pytest.approx(0.055) and cfg.controller.update_rate == 200.0
+    """What the tests judge on is config/bench.yaml as the file says, read here as plain YAML:
+    no fixture may swap its dither or its sensors."""
+    shipped = yaml.safe_load((ROOT / 'config' / 'bench.yaml').read_text())['/**'][
+        'ros__parameters']
+    assert bench.plant_overrides == {f'input.{k}': v for k, v in shipped['input'].items()}
+    for signal in ('line_flow', 'pump_flow', 'line_pressure', 'load_pressure'):
+        for field, value in shipped['sensors'][signal].items():
+            assert getattr(bench.spec(signal), field) == value, (signal, field)
+    assert bench.seed == shipped['sensors']['seed']
+    # The design took its delay from that profile: 11 periods at 200 Hz.
+    assert cfg.model.t_d == shipped['sensors']['line_flow']['delay']
+    assert cfg.delay_steps == 11 and cfg.controller.update_rate == 200.0
 
 
 @pytest.mark.parametrize('r0, r1', cs.FLOW_STEPS)
@@ -159,16 +154,17 @@ def test_unreachable_demand_then_release(cfg, params, bench, FS):
                                          ('margin', {'start_margin': 2.5e6, 'aperture': 0.5})])
 def test_dither_ripple_on_the_command(cfg, params, bench, mode, start):
     f = cs.dither_case(EMCController(cfg), params, bench, mode, **start).figures
-    # 1 % of the 0..100 % current span (0.4 A); the controller sees the 150 Hz ripple
-    # aliased to 50 Hz at 200 Hz, so both tones are bounded.
+    # 1 % of the 0..100 % current span (0.4 A), at the dither frequency and at its alias in
+    # the controller's 200 Hz samples (the bench's 400 Hz folds onto 0 Hz, a bias the
+    # disturbance estimate takes; a 150 Hz dither would show at 50 Hz).
     assert f['ripple_dither'] <= 0.01 * cs.CURRENT_SPAN
     assert f['ripple_alias'] <= 0.01 * cs.CURRENT_SPAN
 
 
 def test_flow_disturbance_against_the_baseline(cfg, params, bench, FS):
-    """Shaft speed -/+10 % at 50 % flow, 8 noise seeds. The 0.9 x PI target holds for the
-    falling speed; for the rising one the achievable target is 0.95 x on average and never
-    worse than 1.05 x (docs/control.md, "targets shown impossible")."""
+    """Shaft speed -/+10 % at 50 % flow, 8 noise seeds: the 0.9 x PI target on average over
+    the seeds, for both directions, and never worse than 1.05 x on any seed (docs/control.md,
+    section 9: under a dither below the spool's corner the rising speed reached only 0.94 x)."""
     from dataclasses import replace
     ratio = {}
     for k in (0.9, 1.1):
@@ -184,9 +180,8 @@ def test_flow_disturbance_against_the_baseline(cfg, params, bench, FS):
         # quantum of the flow sensor.
         emc_peak, pi_peak = np.mean(peaks, axis=0)
         assert emc_peak <= pi_peak + 0.0025 * FS
-    assert ratio[0.9].mean() <= 0.9
     for r in ratio.values():
-        assert r.mean() <= 0.95 and r.max() <= 1.05
+        assert r.mean() <= 0.9 and r.max() <= 1.05
     # Lower bound of any causal controller: the error is the whole step for t_d.
     e = cs.shaft_speed_case(EMCController(cfg), params, bench, 0.5 * FS, 1.1).figures
     assert e['iae'] >= 0.05 * 0.5 * FS * bench.spec('line_flow').delay

@@ -133,7 +133,7 @@ class Emc:
     reference_headroom: float = spec('-', 'fraction of the spool stroke limit the reference '
                                      'trajectory may use', 0.05, 1.0, default=1.0, live=True)
     tau_control: float = spec('s', 'state-feedback eigenvalue (tracking error)', 1.0e-3, 5.0,
-                              default=0.01, live=True)
+                              default=0.015, live=True)
     tau_estimator_fast: float = spec('s', 'faster noise-estimator eigenvalue (flow state and '
                                      'disturbance)', 1.0e-3, 5.0, default=0.035, live=True)
     tau_estimator_slow: float = spec('s', 'slower noise-estimator eigenvalue (flow state and '
