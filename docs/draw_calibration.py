@@ -11,7 +11,7 @@ import tempfile
 
 from hydropump_ctrl.ident import read_recordings, recording_to_bag
 from hydropump_ctrl.ident.calibrate import calibrate, params_with
-from hydropump_ctrl.ident.calibration_report import plot_comparison
+from hydropump_ctrl.ident.calibrate.writers import plot_comparison
 from hydropump_ctrl.ident.design import candidate_inputs
 from hydropump_ctrl.ident.synthetic import plant_recording
 from hydropump_sim.params import load_params

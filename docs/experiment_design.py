@@ -1,7 +1,7 @@
 """Write docs/experiment_design.md: which standard experiment determines which parameter.
 
 The table is computed, not asserted: for each experiment of
-``hydropump_ctrl.ident.identifiability.candidate_inputs`` (at config/pump.yaml), the Fisher
+``hydropump_ctrl.ident.design.candidate_inputs`` (at config/pump.yaml), the Fisher
 information of the usual free set (plus ``fluid.beta``) from the bench's flow and pressure
 sensors, the measurement delays free; each cell is the relative standard error of the
 parameter from that experiment alone. Run: ``.venv/bin/python docs/experiment_design.py``.
@@ -10,7 +10,7 @@ parameter from that experiment alone. Run: ``.venv/bin/python docs/experiment_de
 from pathlib import Path
 
 from hydropump_ctrl.ident.design import experiment_table
-from hydropump_ctrl.ident.identifiability import DETERMINED_REL_STD
+from hydropump_ctrl.ident.calibrate import DETERMINED_REL_STD
 from hydropump_sim.params import load_params
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -8,7 +8,7 @@ part of the plant and is evaluated continuously.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 import math
 from pathlib import Path
@@ -219,54 +219,100 @@ def simulate(params: Params, duration: float, current: Signal = None, *, model: 
     -------
     SimResult
     """
+    return _simulate([params], duration, current, model, load_pressure, aperture, shaft_speed,
+                     [x0], dt_out, dt_max, method, config, rtol, t0)[0]
+
+
+def simulate_copies(params: Sequence[Params], duration: float, current: Signal = None, *,
+                    model: str = 'fine', load_pressure: Signal = None, aperture: Signal = None,
+                    shaft_speed: Signal = None, x0=None, dt_out: float = 1.0e-3,
+                    dt_max: float = 1.0e-3, config: IntegratorConfig = IntegratorConfig(),
+                    rtol: float | None = None, t0: float = 0.0,
+                    own_jacobian: bool = False) -> list[SimResult]:
+    """Simulate several parameter sets on the same inputs in one compiled loop, every copy
+    taking the steps that the first one's error control chooses (Rodas4, see
+    :func:`simulate` for the arguments; the inputs are checked against the first set).
+
+    With a shared step sequence the difference between two copies is a smooth function of
+    their parameters, free of the step-size noise two separate runs would have: divided by
+    the parameter change it is the sensitivity of the solution (internal numerical
+    differentiation). ``own_jacobian=False`` lets the copies reuse the first one's
+    factorised iteration matrix (6 right-hand sides a step instead of 14; sensitivities
+    within about 0.1 % of exact on the pump's flows and pressures); ``True`` makes each
+    copy the exact Rodas4 solution of its own parameters.
+
+    ``x0`` is a sequence of initial states, one per set (``None`` entries: the equilibrium at
+    the initial inputs of that set).
+    """
+    params = list(params)
+    if not params:
+        raise InputError('simulate_copies needs at least one parameter set')
+    x0s = [None] * len(params) if x0 is None else list(x0)
+    if len(x0s) != len(params):
+        raise InputError(f'x0 has {len(x0s)} states for {len(params)} parameter sets')
+    return _simulate(params, duration, current, model, load_pressure, aperture, shaft_speed,
+                     x0s, dt_out, dt_max, 'rodas', config, rtol, t0, own_jacobian)
+
+
+def _simulate(plist, duration, current, model, load_pressure, aperture, shaft_speed, x0s,
+              dt_out, dt_max, method, config, rtol, t0, own_jacobian=False):
+    params = plist[0]
     n_out, decim, dt = _grid(duration, dt_out, dt_max)
     n_inc = n_out * decim
     t_inc = np.arange(n_inc) * dt
     U, n_clamped = input_table(params, t_inc, current, load_pressure, aperture, shaft_speed,
                                dt_out)
-    p = pack(params, model)
-    if x0 is None:
-        x0 = equilibrium(params, U[0, c.U_IS] + params.I_nominal, load_pressure=U[0, c.U_PU],
-                         aperture=U[0, c.U_XI], shaft_speed=U[0, c.U_FP], model=model).x
-    x0 = np.asarray(x0, dtype=float)
     names = state_names(params, model)
-    if x0.shape != (len(names),):
-        raise InputError(f'x0 must have {len(names)} entries ({", ".join(names)})')
-    Y = np.zeros((n_out + 1, c.N_Y))
-    X = np.zeros((n_out + 1, x0.size))
+    P = np.array([pack(q, model) for q in plist])
+    X0 = np.empty((len(plist), len(names)))
+    for r, (q, x0) in enumerate(zip(plist, x0s)):
+        if state_names(q, model) != names:
+            raise InputError('the parameter sets have different states (input.tau_s on in '
+                             'some, off in others)')
+        if x0 is None:
+            x0 = equilibrium(q, U[0, c.U_IS] + q.I_nominal, load_pressure=U[0, c.U_PU],
+                             aperture=U[0, c.U_XI], shaft_speed=U[0, c.U_FP], model=model).x
+        x0 = np.asarray(x0, dtype=float)
+        if x0.shape != (len(names),):
+            raise InputError(f'x0 must have {len(names)} entries ({", ".join(names)})')
+        X0[r] = x0
+    Y = np.zeros((len(plist), n_out + 1, c.N_Y))
+    X = np.zeros((len(plist), n_out + 1, len(names)))
     stats = np.zeros(2, dtype=np.int64)
     tol = config.rtol if rtol is None else rtol
     if method == 'rodas':
-        _run_rodas(x0, dt, U, p, tol, config, decim, Y, X, stats, t0)
+        _run_rodas(X0, dt, U, P, tol, config, decim, Y, X, stats, t0, own_jacobian)
     elif t0 and params.input.dither_amp:
         raise InputError('t0 (the dither phase) needs the rodas method')
     elif method == 'radau':
-        _run_radau(x0, dt, U, p, tol, decim, Y, X, stats)
+        _run_radau(X0[0], dt, U, P[0], tol, decim, Y[0], X[0], stats)
     else:
         raise InputError(f'unknown method {method!r}: choose rodas or radau')
     t = np.arange(n_out + 1) * dt_out
     U_out = np.vstack([U[::decim], U[-1:]])
-    return SimResult(t=t, y=Y, x=X, u=U_out, model=model, states=names, n_clamped=n_clamped,
-                     stats={'accepted': int(stats[0]), 'rejected': int(stats[1])})
+    st = {'accepted': int(stats[0]), 'rejected': int(stats[1])}
+    return [SimResult(t=t, y=Y[r], x=X[r], u=U_out, model=model, states=names,
+                      n_clamped=n_clamped, stats=st) for r in range(len(plist))]
 
 
 # Increments per call of the compiled loop: the wall-time budget is checked between calls.
 _CHUNK = 20000
 
 
-def _run_rodas(x0, dt, U, p, rtol, config, decim, Y, X, stats, t0=0.0):
-    """The compiled Rodas4 loop under the step and wall-time budgets of ``config``."""
-    n_out = Y.shape[0] - 1
+def _run_rodas(X0, dt, U, P, rtol, config, decim, Y, X, stats, t0=0.0, own_jacobian=False):
+    """The compiled Rodas4 loop (rows of ``X0``/``P``: copies, see :func:`simulate_copies`)
+    under the step and wall-time budgets of ``config``."""
+    n_out = Y.shape[1] - 1
     rows = max(1, _CHUNK // decim)
     budget = int(max(config.steps_per_second * U.shape[0] * dt, 1000))
     t_wall = time.perf_counter()
-    x = x0
+    x = X0
     for r0 in range(0, n_out, rows):
         r1 = min(r0 + rows, n_out)
         k0, k1 = r0 * decim, r1 * decim
-        status, done = c.run(x[None], t0 + k0 * dt, dt, U[k0:k1], p[None], rtol, config.h_min,
-                             config.max_steps, decim, Y[None, r0:r1 + 1], X[None, r0:r1 + 1],
-                             stats, budget)
+        status, done = c.run(x, t0 + k0 * dt, dt, U[k0:k1], P, rtol, config.h_min,
+                             config.max_steps, decim, Y[:, r0:r1 + 1], X[:, r0:r1 + 1], stats,
+                             budget, own_jacobian)
         t_fail = (k0 + done) * dt
         if status == c.FAIL_BUDGET:
             raise IntegrationError(
@@ -278,7 +324,7 @@ def _run_rodas(x0, dt, U, p, rtol, config, decim, Y, X, stats, t0=0.0):
             why = {c.FAIL_STEP: 'step size underflow', c.FAIL_NAN: 'non-finite state',
                    c.FAIL_STEPS: 'too many steps in one increment'}[status]
             raise IntegrationError(f'integration failed at t = {t_fail:.6g} s: {why}')
-        x = X[r1].copy()
+        x = X[:, r1].copy()
         elapsed = time.perf_counter() - t_wall
         if elapsed > config.time_budget and r1 < n_out:
             raise IntegrationError(f'stopped after {elapsed:.3g} s of wall time at t = '

@@ -43,6 +43,6 @@ def test_calibration_recovers_a_perturbed_plant_from_recorded_bags(nodes, test_n
     assert 'solenoid_current_cmd' in rec and 'load_pressure' in rec
     cal = calibrate([rec], base, FREE)
     for p in cal.estimates:
-        assert p.determined and abs(p.value / truth.flat()[p.name] - 1) < 0.02, \
+        assert p.well_determined and abs(p.value / truth.flat()[p.name] - 1) < 0.02, \
             (p.name, p.value, truth.flat()[p.name])
     assert abs(cal.delays['all']['line_flow'] - 0.055) < 2e-3

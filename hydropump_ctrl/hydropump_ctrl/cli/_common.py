@@ -99,3 +99,17 @@ def _make_folder(path: Path, what: str) -> None:
             from None
     except OSError as exc:
         raise UsageError(f'cannot create the {what} {path}: {exc.strerror or exc}') from None
+
+
+def protect_output(path: str | Path, inputs: Iterable[str | Path], what: str) -> None:
+    """Refuse, with one line, an output that would overwrite what the user gave: one of the
+    ``inputs``, a file inside an input folder (a bag's ``metadata.yaml``), or a folder an
+    input lies in."""
+    out = Path(path).expanduser().resolve()
+    for item in inputs:
+        src = Path(item).expanduser().resolve()
+        if out == src:
+            raise UsageError(f'{what} {path}: it is one of the inputs; choose another name')
+        if src.is_dir() and src in out.parents:
+            raise UsageError(f'{what} {path}: it lies inside the input {item}; choose a '
+                             'path outside it')

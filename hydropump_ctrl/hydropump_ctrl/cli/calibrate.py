@@ -4,8 +4,10 @@
 (:mod:`hydropump_ctrl.ident.calibrate`), writes the calibrated params file (loadable by
 ``load_params`` and by the simulator node's ``params_file``), a report folder (``result.json``,
 ``report.md``, before/after and residual plots, the correlation heat map) and prints the
-table, or the JSON result with ``--json``. ``validate`` gives the fit % per signal of a params
-file on bags it was not fitted to, with the same plots.
+table, or the JSON result with ``--json``. ``validate`` gives the residual (RMS in SI units)
+and the fit percentage per signal of a params file on bags it was not fitted to, with
+overlays of the measured signals, the params file's prediction and, with ``--before``, another
+file's.
 """
 
 from __future__ import annotations
@@ -13,10 +15,19 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+import re
 import sys
 import time
 
-from ._common import add_params_option, add_progress_option, output_file, plant_file, run_dir
+from ._common import (
+    add_params_option,
+    add_progress_option,
+    output_file,
+    plant_file,
+    protect_output,
+    run_dir,
+    UsageError,
+)
 
 PARAMS_SUFFIXES = ('.yaml', '.yml')
 
@@ -39,15 +50,17 @@ def _read(args):
 
 
 def _common(p) -> None:
+    from hydropump_sim.measure import BENCH_OUTPUT_SIGNALS, OUTPUT_SIGNALS
     p.add_argument('bags', nargs='+', metavar='BAG',
                    help='bag directory, .mcap or .db3 file, or a saved .npz recording')
     p.add_argument('--profile', metavar='FILE',
                    help='sensor profile the bags were recorded with (e.g. config/bench.yaml): '
                         'its plant settings (the dither) are layered over --params, as the '
                         'simulator node layers them')
-    p.add_argument('--signals', nargs='+', metavar='SIGNAL',
-                   help='compare only these signals (default: every measured one the bags '
-                        'have)')
+    p.add_argument('--signals', nargs='+', metavar='SIGNAL', choices=OUTPUT_SIGNALS,
+                   help='compare these signals (default: those a bench measures that the bags '
+                        f'have: {", ".join(BENCH_OUTPUT_SIGNALS)}; the simulator\'s exact '
+                        'spool_position and actuator_position only when named here)')
     p.add_argument('--no-delays', action='store_true',
                    help='fit no measurement delays (every signal taken as undelayed)')
     p.add_argument('--allow-truncated', action='store_true',
@@ -67,61 +80,77 @@ def register(sub) -> None:
     c.add_argument('--free', nargs='+', metavar='NAME', required=True,
                    help='plant parameters to fit, dotted as in config/pump.yaml (e.g. '
                         'actuator.mu_a line.V_l)')
+    c.add_argument('--prior', nargs='+', default=[], metavar='NAME=VALUE+-REL',
+                   help='a Gaussian prior in log coordinates on a free parameter, e.g. '
+                        'line.V_l=5e-4+-10%%: for a direction the bags leave weak; reported '
+                        'as such')
     c.add_argument('--offset', nargs='+', default=[], metavar='SIGNAL',
                    help='also fit an offset per bag on these signals')
     c.add_argument('--out', help='calibrated params file (default: calibrated.yaml in the '
-                   'report folder)')
+                   'report folder); never one of the inputs')
     c.add_argument('--report', help='report folder (default: out/calibrate-<time>)')
     c.add_argument('--json', action='store_true', help='print the JSON result on stdout')
     c.add_argument('--no-multistart', action='store_true',
                    help='one start only (by default two more when the first does not reach '
                         'the noise level)')
     c.set_defaults(func=cmd_calibrate)
-    v = sub.add_parser('validate', help='fit % of a params file on bags it was not fitted to',
-                       description='fit % per signal of a params file on bags, with plots',
+    v = sub.add_parser('validate', help='residual and fit %% of a params file on bags it was '
+                       'not fitted to', description=__doc__.splitlines()[0],
                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     _common(v)
     add_params_option(v, 'to validate')
+    v.add_argument('--before', metavar='FILE',
+                   help='a second params file to overlay and compare (e.g. the start of a '
+                        "calibration; default: the start named in a calibrated file's "
+                        'header, if it exists)')
     v.add_argument('--out', help='report folder (default: out/validate-<time>)')
     v.add_argument('--json', action='store_true', help='print the JSON result on stdout')
     v.set_defaults(func=cmd_validate)
 
 
-def _check_signals(args) -> None:
-    from ..ident.calibrate import OUTPUT_SIGNALS
-    from ._common import UsageError
-    bad = [s for s in args.signals or () if s not in OUTPUT_SIGNALS]
-    if bad:
-        raise UsageError(f'--signals {" ".join(bad)}: not a compared signal (choose from '
-                         f'{", ".join(OUTPUT_SIGNALS)})')
-
-
-def _plant(args):
-    """The params file, with the plant settings of ``--profile`` layered over it."""
+def _plant(path, profile):
+    """The params file, with the plant settings of ``profile`` layered over it."""
     from hydropump_sim.params import load_params
     from hydropump_sim.sensors import load_profile
-    plant = plant_file(args)
-    params = load_params(plant)
-    if args.profile:
-        over = load_profile(args.profile).plant_overrides or {}
+    params = load_params(path)
+    if profile:
+        over = load_profile(profile).plant_overrides or {}
         if over:
             params = params.replace(over)
-    return plant, params
+    return params
+
+
+def _priors(args):
+    from ..ident.calibrate import parse_prior
+    out = []
+    for text in args.prior:
+        try:
+            out.append(parse_prior(text))
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+    return out
 
 
 def cmd_calibrate(args) -> int:
-
-    from ..ident.calibrate import calibrate, write_params
-    from ..ident.calibration_report import fit_table, write_calibration_report
+    from ..ident.calibrate import calibrate, fit_table, write_calibration_report, write_params
+    from ..ident.calibrate.writers import estimate_text
     from ..ident.design import suggest
-    _check_signals(args)
-    plant, base = _plant(args)
+    priors = _priors(args)
+    plant = plant_file(args)
+    inputs = [plant, *args.bags] + ([args.profile] if args.profile else [])
+    if args.out:
+        protect_output(args.out, inputs, 'calibrated params file')
+    if args.report:
+        protect_output(args.report, inputs, 'report folder')
     report = run_dir(args.report, 'calibrate')
-    out = output_file(args.out or report / 'calibrated.yaml', PARAMS_SUFFIXES, 'params file')
+    out = output_file(Path(args.out) if args.out else report / 'calibrated.yaml',
+                      PARAMS_SUFFIXES, 'params file')
+    base = _plant(plant, args.profile)
     recs = _read(args)
     show = _progress_printer(args.progress)
     cal = calibrate(recs, base, args.free, offsets=args.offset, fit_delays=not args.no_delays,
-                    signals=args.signals, multistart=not args.no_multistart, progress=show)
+                    signals=args.signals, priors=priors, multistart=not args.no_multistart,
+                    progress=show)
     if show:
         print(file=sys.stderr)
     suggest(cal)
@@ -132,12 +161,10 @@ def cmd_calibrate(args) -> int:
         print(json.dumps(cal.to_dict(), indent=2))
         return 0
     print(f'calibrated {len(cal.free)} parameters on {len(recs)} recordings '
-          f'({cal.n_simulations} simulations, {cal.wall_time:.1f} s)\n')
+          f'({cal.n_simulations} simulated runs, {cal.wall_time:.1f} s)\n')
     w = max(len(n) for n in cal.free)
     for p in cal.estimates:
-        se = ('NOT DETERMINED by these recordings' if not p.determined else
-              f'+- {p.stderr:.3g} ({100 * p.stderr / abs(p.value):.2f} %)' if p.stderr else '')
-        print(f'  {p.name:<{w}}  {p.initial:12.6g} -> {p.value:12.6g}  {se}'
+        print(f'  {p.name:<{w}}  {p.initial:12.6g} -> {p.value:12.6g}  {estimate_text(p)}'
               + (f'  [{p.on_bound} bound]' if p.on_bound else ''))
     for n, v in cal.tied.items():
         print(f'  {n:<{w}}  tied: {v:.6g}')
@@ -149,21 +176,45 @@ def cmd_calibrate(args) -> int:
     return 0
 
 
+def _start_of(path: Path) -> Path | None:
+    """The start file a calibrated params file names in its header, if it still exists."""
+    try:
+        head = path.read_text(encoding='utf-8').split('\n/**', 1)[0]
+    except OSError:
+        return None
+    m = re.search(r'^# start: (.+)$', head, re.MULTILINE)
+    p = Path(m.group(1).strip()) if m else None
+    return p if p is not None and p.is_file() else None
+
+
 def cmd_validate(args) -> int:
-    from ..ident.calibrate import validate
-    from ..ident.calibration_report import fit_table, write_validation_report
-    _check_signals(args)
-    plant, params = _plant(args)
+    from ..ident.calibrate import write_validation_report
+    from ..ident.calibrate.writers import fit_table, misfit_table
+    plant = plant_file(args)
+    before_file = Path(args.before) if args.before else _start_of(plant)
+    if args.out:
+        protect_output(args.out, [plant, *args.bags], 'report folder')
     out = run_dir(args.out, 'validate')
+    params = _plant(plant, args.profile)
+    before = _plant(before_file, args.profile) if before_file else None
     recs = _read(args)
-    fit, delays, exps, preds = validate(recs, params, signals=args.signals,
-                                        fit_delays=not args.no_delays)
-    write_validation_report(fit, delays, exps, preds, out, str(plant), plots=not args.no_plots)
+    from ..ident.calibrate import validate
+    val = validate(recs, params, signals=args.signals, fit_delays=not args.no_delays,
+                   before=before)
+    write_validation_report(val, out, str(plant), str(before_file) if before_file else None,
+                            plots=not args.no_plots)
     if args.json:
-        print(json.dumps({'params': str(plant), 'fit_percent': fit, 'delays_s': delays},
-                         indent=2))
+        data = {'params': str(plant), 'fit_percent': val['fit'], 'misfit': val['misfit'],
+                'delays_s': val['delays']}
+        if before is not None:
+            data.update(before=str(before_file), fit_percent_before=val['fit_before'],
+                        misfit_before=val['misfit_before'])
+        print(json.dumps(data, indent=2))
         return 0
-    print(f'fit % of {plant} on {len(recs)} recordings:')
-    print(fit_table(fit))
+    print(f'{plant} on {len(recs)} recordings' + (f' (before: {before_file})' if before_file
+                                                   else '') + ':\n')
+    print(misfit_table(val['misfit'], val.get('misfit_before')))
+    print('\nfit %' + (' (before -> after)' if before is not None else '') + ':')
+    print(fit_table(val['fit'], val.get('fit_before')))
     print(f'\nwrote {Path(out) / "validation.md"}')
     return 0

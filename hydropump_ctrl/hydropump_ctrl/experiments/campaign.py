@@ -234,8 +234,7 @@ def bench_calibration(params: Params, profile: SensorProfile, recordings: Sequen
     dither) from the identification bags, from a start ``start_factor`` off; the table rows
     (parameter, start, calibrated, plant, error) and the validation figure of the first bag
     (before and after)."""
-    from ..ident.calibrate import calibrate, params_with
-    from ..ident.calibration_report import write_calibration_report
+    from ..ident.calibrate import calibrate, params_with, write_calibration_report
     plant = params.replace(profile.plant_overrides or {})
     truth = {n: float(plant.flat()[n]) for n in CALIBRATED}
     start = params_with(plant, CALIBRATED, [start_factor * truth[n] for n in CALIBRATED])

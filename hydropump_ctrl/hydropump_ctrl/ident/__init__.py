@@ -23,11 +23,10 @@ Modules, each building only on those above it:
 Beyond eq. 19 (imported from their modules; they need the plant library's simulator):
 
 - :mod:`.matrix` - the whole of eq. 16 from bags (``hydropump fit --matrix``);
-- :mod:`.identifiability` - which parameters the data determine;
 - :mod:`.calibrate` - grey-box calibration of the fine model (``hydropump calibrate``,
-  ``hydropump validate``);
-- :mod:`.design` - experiment design from the identifiability analysis;
-- :mod:`.calibration_report` - the calibration's plots and page.
+  ``hydropump validate``), a package: data, engine, problem, start values, uncertainty
+  (which parameters the data determine), writers;
+- :mod:`.design` - experiment design from the calibration's uncertainty analysis.
 
 Pure Python: nothing here imports ROS.
 """

@@ -1,10 +1,12 @@
-"""Experiment design from the identifiability analysis: which standard experiment informs
-which parameter, and which would separate a direction a calibration could not determine.
+"""Experiment design from the calibration's uncertainty analysis: which standard experiment
+informs which parameter, and which would determine a direction a calibration left weak.
 
 The standard experiments (:func:`candidate_inputs`) are simulated at the estimate; their
 Fisher information (the noise-weighted sensitivities, the measurement delays free) is added
-to that of the data, and a direction counts as separated when its relative standard error
-falls below :data:`.identifiability.DETERMINED_REL_STD`. The table of
+to that of the recordings, and a weak direction counts as separated when its relative
+standard error with the candidate falls below :data:`.calibrate.DETERMINED_REL_STD`: a
+candidate the recordings already hold adds only its own noise average (a second staircase
+lowers the error by about 1/sqrt 2) and is named only if that is enough. The table of
 ``docs/experiment_design.md`` is :func:`experiment_table`. Nothing here imports ROS.
 """
 
@@ -17,8 +19,10 @@ import numpy as np
 
 from hydropump_sim.errors import HydropumpError
 
-from .calibrate import Calibration, Coordinates, Experiment, Problem
-from .identifiability import DETERMINED_REL_STD, reduce_nuisance
+from .calibrate import Calibration, DETERMINED_REL_STD, Experiment
+from .calibrate.engine import Engine
+from .calibrate.problem import Coordinates, Problem
+from .calibrate.uncertainty import reduce_nuisance
 
 # A planned experiment's delays are taken as free, at a typical value [s].
 DELAY_PLAN = 0.05
@@ -66,7 +70,7 @@ def experiment_information(params, free: Sequence[str], inputs: dict, sigma: dic
     load = inputs['load_pressure']
     meas = {s: np.zeros(cur.size) for s in sigma}
     exp = Experiment('candidate', dt, cur, load, meas, dict(sigma))
-    prob = Problem(params, Coordinates.of(params, free), [exp], workers=1)
+    prob = Problem(Engine(params, free, [exp], workers=1), Coordinates.of(params, free))
     flat = params.flat()
     z = prob.coords.to_z(np.array([flat[n] for n in free]))
     # The delays are unknown in a planned experiment: each signal's is free (projected out).
@@ -77,20 +81,20 @@ def experiment_information(params, free: Sequence[str], inputs: dict, sigma: dic
 
 
 def separating_experiments(params, free: Sequence[str], information: np.ndarray,
-                           direction: np.ndarray, sigma: dict) -> list[str]:
-    """Which candidate experiments, added to data of Fisher ``information``, determine
-    ``direction`` (relative standard error below :data:`DETERMINED_REL_STD`)."""
-    base = information
+                           direction: np.ndarray, sigma: dict) -> list[tuple[str, float]]:
+    """Which candidate experiments, added to recordings of Fisher ``information``, determine
+    ``direction`` (relative standard error below :data:`DETERMINED_REL_STD`), with the
+    standard error it would have."""
     good = []
     w = np.asarray(direction, float)
     for name, inputs in candidate_inputs(params).items():
         try:
-            info = base + experiment_information(params, free, inputs, sigma)
+            info = information + experiment_information(params, free, inputs, sigma)
         except HydropumpError:   # a candidate the model cannot run is no candidate
             continue
         var = float(w @ np.linalg.pinv(info) @ w)
         if var > 0 and math.sqrt(var) < DETERMINED_REL_STD:
-            good.append(name)
+            good.append((name, math.sqrt(var)))
     return good
 
 
@@ -109,17 +113,22 @@ def experiment_table(params, free: Sequence[str], sigma: dict) -> dict[str, dict
 
 
 def suggest(cal: Calibration) -> None:
-    """Name, for every direction ``cal`` could not determine, the standard experiments that
-    would (``separated_by`` of each entry of ``cal.undetermined``, and a flag)."""
-    if not cal.undetermined:
+    """Name, for every weak or held direction of ``cal``, the standard experiments that would
+    determine it (``separated_by`` of each entry of ``cal.weak`` and ``cal.held``, and a
+    flag); the Fisher information of the recordings is the one at the estimate."""
+    dirs = cal.weak + cal.held
+    if not dirs:
         return
     exps = cal.experiments
     sigma = {s: float(np.median([e.sigma[s] for e in exps if s in e.sigma]))
              for s in {s for e in exps for s in e.measured}}
-    for u in cal.undetermined:
+    for u in dirs:
         sep = separating_experiments(cal.params, cal.free, cal.information,
                                      np.array(u['direction']), sigma)
-        u['separated_by'] = sep
+        u['separated_by'] = [name for name, _ in sep]
+        u['separated_stderr'] = {name: se for name, se in sep}
         cal.flags.append(f'to determine {", ".join(u["parameters"])}, add: '
-                         + (', '.join(sep) if sep else 'none of the standard experiments '
-                            'suffices (a measurement of another signal is needed)'))
+                         + (', '.join(f'{n} ({100 * se:.2g} %)' for n, se in sep) if sep
+                            else 'none of the standard experiments suffices with these '
+                            'signals (a measurement of another signal, or a prior, is '
+                            'needed)'))

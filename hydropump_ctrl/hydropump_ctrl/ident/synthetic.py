@@ -154,8 +154,10 @@ def plant_recording(params, current: np.ndarray, *, load_pressure: np.ndarray | 
                     dt: float = 1e-3, profile=None, name: str = 'plant') -> Recording:
     """A recording of the fine model as the simulator node publishes it: every measured
     signal through the sensor ``profile`` (a :class:`hydropump_sim.sensors.SensorProfile`),
-    pressures absolute, the current stamped at the end of the step it was applied over, and
-    the command ``solenoid_current_cmd`` left out (a bench that logs only its sensors).
+    pressures absolute, the inputs (current, load pressure) stamped with the instant they
+    hold from, and the command ``solenoid_current_cmd`` left out (a bench that logs only its
+    sensors). Made by the suite's own integrator and sensor models: data for examples and
+    benchmarks, not a truth for the fit's tests (those come from ``tests/independent.py``).
 
     ``current`` is the absolute command [A] held over each sample; ``load_pressure`` gauge
     [Pa] (default: the params file's)."""
@@ -170,9 +172,6 @@ def plant_recording(params, current: np.ndarray, *, load_pressure: np.ndarray | 
     y = res.y[:n]
     true = {s: (res.P_u[:n] if o is None else y[:, OUTPUTS.index(o)])
             for s, o in SIGNAL_OUTPUTS.items()}
-    # The node publishes at t_k the current held over the step that ended there.
-    true['solenoid_current'] = np.concatenate([[true['solenoid_current'][0]],
-                                               true['solenoid_current'][:-1]])
     t = np.arange(n) * dt
     meas = apply_profile(profile, t, true) if profile is not None else true
     p_atm = params.fluid.p_atm

@@ -1,0 +1,487 @@
+"""Grey-box calibration of the fine model to recordings (``hydropump calibrate``,
+``hydropump validate``), in the manner of MATLAB's ``nlgreyest``.
+
+Chosen plant parameters (dotted names of ``config/pump.yaml``) are estimated by fitting the
+6th-order fine model to several recordings at once. The package is laid out as scipy's
+``optimize._lsq`` is:
+
+- :mod:`.data` - recordings as the model sees them (held inputs, measured outputs, noise
+  levels) and the checks of bad input;
+- :mod:`.engine` - the simulations: every experiment at a parameter vector, and the
+  sensitivities from copies of the plant stepped with the nominal run in one compiled loop;
+- :mod:`.problem` - search coordinates, ties and priors; the residuals and their Jacobian,
+  with the measurement delays and offsets solved inside (variable projection);
+- :mod:`.start` - start values in closed form where the data allow (eqs. 6, 9, 14);
+- :mod:`.uncertainty` - standard errors, 95 % intervals, weak and singular directions;
+- :mod:`.writers` - the calibrated params file, the JSON result, the report and figures;
+- this module - the front end: :func:`calibrate` and :func:`validate`.
+
+Every free parameter comes back at its best estimate with a standard error and a 95 %
+interval; a poorly determined one is flagged with the combination the data determine, and
+only a direction the information matrix is singular in (to working precision) is held, the
+result saying so. Nothing here imports ROS.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from hydropump_sim.errors import HydropumpError
+from hydropump_sim.params import Params
+
+from ..fit import blas_single_threaded
+from .data import (
+    CalibrationError,
+    check_signals,
+    excitation_check,
+    Experiment,
+    experiment_from,
+    noise_level,
+)
+from .engine import DERIVED, Engine, params_with, simulate_experiment, tied_values, WORKERS
+from .problem import (
+    check_free,
+    Coordinates,
+    DELAY_MAX,
+    DELAY_MIN,
+    delayed,
+    parse_prior,
+    Prior,
+    Problem,
+)
+from .start import start_values
+from .uncertainty import analyse, DETERMINED_REL_STD, interval, singular_directions
+from .writers import (
+    fit_table,
+    write_calibration_report,
+    write_params,
+    write_text,
+    write_validation_report,
+)
+
+# ---- the result ----------------------------------------------------------------------------
+
+
+@dataclass
+class ParameterEstimate:
+    """One free parameter: its estimate and what the data say about it (SI)."""
+
+    name: str
+    value: float
+    initial: float
+    stderr: float                     # standard error [the parameter's unit]
+    ci95: tuple[float, float]         # 95 % interval
+    well_determined: bool
+    reason: str = ''                  # why it is not, and what the data determine instead
+    held: bool = False                # held at ``value`` (a singular direction)
+    on_bound: str | None = None       # 'lower' / 'upper'
+    prior: str | None = None          # the prior it was given
+
+    @property
+    def relative_stderr(self) -> float:
+        return self.stderr / abs(self.value) if self.value else math.inf
+
+    def to_dict(self) -> dict[str, Any]:
+        return {'value': self.value, 'stderr': _num(self.stderr),
+                'relative_stderr': _num(self.relative_stderr),
+                'ci95': [_num(v) for v in self.ci95], 'initial': self.initial,
+                'well_determined': self.well_determined, 'reason': self.reason,
+                'held': self.held, 'held_at': self.value if self.held else None,
+                'on_bound': self.on_bound, 'prior': self.prior}
+
+
+def _num(v):
+    return None if v is None or not math.isfinite(v) else float(v)
+
+
+@dataclass
+class Calibration:
+    """What :func:`calibrate` found (see :meth:`to_dict` for the JSON form)."""
+
+    params: Params
+    start: Params
+    estimates: list[ParameterEstimate]
+    correlation: np.ndarray
+    singular_values: np.ndarray
+    weak: list[dict]                          # poorly determined directions
+    held: list[dict]                          # singular directions held at the start
+    fit: dict[str, dict[str, float]]          # experiment -> signal -> fit %
+    fit_before: dict[str, dict[str, float]]
+    misfit: dict[str, dict[str, dict]]        # experiment -> signal -> rms [SI], noise, ratio
+    delays: dict[str, dict[str, float]]       # experiment ('all': shared) -> signal -> s
+    offsets: dict[str, dict[str, float]]
+    sigma: dict[str, dict[str, float]]
+    flags: list[str]
+    notes: list[str]
+    sources: list[str]
+    free: tuple[str, ...]
+    tied: dict[str, float]
+    priors: list[Prior]
+    method: str
+    n_simulations: int
+    wall_time: float
+    cost: float
+    predictions: list[dict[str, np.ndarray]] = field(default_factory=list, repr=False)
+    predictions_before: list[dict[str, np.ndarray]] = field(default_factory=list, repr=False)
+    experiments: list[Experiment] = field(default_factory=list, repr=False)
+    # Fisher information of the data in the search coordinates (the nuisance projected out).
+    information: np.ndarray | None = field(default=None, repr=False)
+    covariance: np.ndarray | None = field(default=None, repr=False)
+
+    def estimate(self, name: str) -> ParameterEstimate:
+        return next(p for p in self.estimates if p.name == name)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            'free': list(self.free),
+            'parameters': {p.name: p.to_dict() for p in self.estimates},
+            'tied': self.tied,
+            'priors': [p.text for p in self.priors],
+            'correlation': [[_num(v) for v in row] for row in self.correlation],
+            'singular_values': [float(v) for v in self.singular_values],
+            'weak_directions': self.weak, 'held_directions': self.held,
+            'fit_percent': self.fit, 'fit_percent_before': self.fit_before,
+            'misfit': self.misfit,
+            'delays_s': self.delays, 'offsets': self.offsets, 'noise_sigma': self.sigma,
+            'flags': self.flags, 'notes': self.notes, 'bags': self.sources,
+            'method': self.method, 'n_simulations': self.n_simulations,
+            'wall_time_s': self.wall_time, 'cost': self.cost,
+        }
+
+
+def fit_percent(y: np.ndarray, yhat: np.ndarray) -> float:
+    """Normalised-RMSE fit ``100 (1 - |y - yhat| / |y - mean y|)`` [%] (MATLAB's ``compare``)."""
+    ok = np.isfinite(y) & np.isfinite(yhat)
+    y, yhat = y[ok], yhat[ok]
+    den = np.linalg.norm(y - y.mean())
+    return float(100.0 * (1.0 - np.linalg.norm(y - yhat) / den)) if den > 0 else float('nan')
+
+
+def _fits(exps, preds) -> dict[str, dict[str, float]]:
+    return {e.name: {s: round(fit_percent(e.measured[s], p[s]), 3) for s in e.measured}
+            for e, p in zip(exps, preds)}
+
+
+# A signal whose residual rms exceeds its noise level by this factor is not fitted: the model
+# leaves out something the data have.
+MISFIT_RATIO = 1.5
+
+
+def misfit_table(exps, preds) -> dict[str, dict[str, dict]]:
+    """Per experiment and signal: the residual's rms in SI units, the noise level, their
+    ratio (1 when the model explains everything but the noise)."""
+    out = {}
+    for e, p in zip(exps, preds):
+        per = {}
+        for s, y in e.measured.items():
+            d = p[s] - y
+            rms = float(np.sqrt(np.nanmean(d ** 2)))
+            per[s] = {'rms': rms, 'noise': float(e.sigma[s]),
+                      'ratio': rms / e.sigma[s] if e.sigma[s] > 0 else math.inf,
+                      'max_abs': float(np.nanmax(np.abs(d)))}
+        out[e.name] = per
+    return out
+
+
+def _solve(prob: Problem, z0: np.ndarray, max_nfev: int, basis=None, z_ref=None):
+    """Trust-region least squares from ``z0`` (scipy), in the span of ``basis`` around
+    ``z_ref`` when given (the held directions stay at ``z_ref``)."""
+    from scipy.optimize import least_squares
+    lo, hi = prob.coords.bounds()
+    if basis is None:
+        z0 = np.clip(z0, lo, hi)
+        return least_squares(prob.residuals, z0, jac=prob.jacobian, bounds=(lo, hi),
+                             method='trf', x_scale='jac', max_nfev=max_nfev, xtol=1e-8,
+                             ftol=1e-8, gtol=1e-8)
+
+    def full(w):
+        return np.clip(z_ref + basis @ w, lo, hi)
+
+    sol = least_squares(lambda w: prob.residuals(full(w)), basis.T @ (z0 - z_ref),
+                        jac=lambda w: prob.jacobian(full(w)) @ basis, method='trf',
+                        x_scale='jac', max_nfev=max_nfev, xtol=1e-8, ftol=1e-8, gtol=1e-8)
+    sol.x = full(sol.x)
+    return sol
+
+
+def _nuisance_tables(prob: Problem, nuis) -> tuple[dict, dict]:
+    delays, offsets = {}, {}
+    for (i, s), (d, o) in nuis.items():
+        name = 'all' if i is None else prob.exps[i].name
+        if prob.fit_delays:
+            delays.setdefault(name, {})[s] = round(float(d), 7)
+        if (i, s) in prob.with_offset:
+            offsets.setdefault(name, {})[s] = float(o)
+    return delays, offsets
+
+
+def _prepare(recordings, base, free, signals, offsets, priors) -> list[Experiment]:
+    errors = check_signals(signals)
+    if errors:
+        raise CalibrationError(errors)
+    exps = [experiment_from(r, base, signals) for r in recordings]
+    recorded = ['load_pressure'] if any(e.load_pressure is not None for e in exps) else []
+    errors = check_free(base, free, recorded) + excitation_check(exps)
+    errors += [f'--offset {s}: not a compared signal of these recordings (compared: '
+               f'{", ".join(sorted({x for e in exps for x in e.measured}))})'
+               for s in offsets if not any(s in e.measured for e in exps)]
+    errors += [f'--prior {p.name}: not a free parameter (free: {", ".join(free)})'
+               for p in priors if p.name not in free]
+    if errors:
+        raise CalibrationError(errors)
+    names = {e.name for e in exps}
+    if len(names) < len(exps):
+        for k, e in enumerate(exps):
+            e.name = f'{k + 1}:{e.name}'
+    return exps
+
+
+@blas_single_threaded
+def calibrate(recordings: Sequence, base: Params, free: Sequence[str], *,
+              offsets: Sequence[str] = (), fit_delays: bool = True, per_bag: bool = False,
+              signals: Sequence[str] | None = None, priors: Sequence[Prior] = (),
+              rtol: float = 1e-5, max_nfev: int = 30, multistart: bool = True,
+              closed_form_start: bool = True, workers: int = WORKERS,
+              progress: Callable[[str], None] | None = None) -> Calibration:
+    """Fit the free plant parameters to ``recordings`` (see the package).
+
+    Parameters
+    ----------
+    recordings : sequence of Recording
+    base : Params
+        The start; every parameter not free keeps its value.
+    free : sequence of str
+        Dotted names of the parameters to fit.
+    offsets : sequence of str
+        Signals that also get an offset per recording (a sensor's zero error).
+    fit_delays : bool
+        Fit a measurement delay per signal (shared by the recordings, or per recording with
+        ``per_bag``).
+    signals : sequence of str, optional
+        The compared outputs; default those a bench measures
+        (:data:`hydropump_sim.measure.BENCH_OUTPUT_SIGNALS`).
+    priors : sequence of Prior
+        Gaussian priors in log coordinates on free parameters (:func:`parse_prior`).
+    closed_form_start : bool
+        Also try the start values of :func:`.start.start_values` and begin from the better.
+
+    Raises
+    ------
+    CalibrationError
+        Bad free parameters, recordings without the needed signals, no excitation, a
+        parameter the recordings cannot inform, or no convergence.
+    """
+    t_wall = time.perf_counter()
+    free, priors = tuple(free), list(priors)
+    exps = _prepare(recordings, base, free, signals, offsets, priors)
+    coords = Coordinates.of(base, free)
+    theta0 = np.array([float(base.flat()[n]) for n in free])
+    z0 = coords.to_z(theta0)
+    engine = Engine(base, free, exps, rtol=rtol, workers=workers)
+    prob = Problem(engine, coords, offsets=offsets, fit_delays=fit_delays, per_bag=per_bag,
+                   priors=priors, progress=progress)
+    notes = [n for e in exps for n in e.notes]
+    try:
+        try:
+            prob.evaluate(z0, search=True)
+            before = prob.predictions(z0)
+        except HydropumpError as exc:
+            raise CalibrationError(f'the start parameters do not simulate: {exc}') from None
+        # A parameter no signal of any recording depends on cannot be informed.
+        Jp0, _ = prob.sensitivities(z0)
+        dead = [n for j, n in enumerate(free) if not np.any(Jp0[:, j])]
+        if dead:
+            raise CalibrationError(
+                [f'{n} cannot be informed by these recordings: no measured signal depends on '
+                 'it in these runs (for instance a relief valve never reached, or a friction '
+                 'set to zero)' for n in dead])
+        tried = ['the start']
+        z_start = z0
+        if closed_form_start:
+            cand, why = start_values(base, free, exps)
+            if cand:
+                zc = coords.to_z(np.array([cand.get(n, v) for n, v in zip(free, theta0)]))
+                try:
+                    c0 = float(np.sum(prob.residuals(z0) ** 2))
+                    prob.evaluate(zc, search=True)
+                    c1 = float(np.sum(prob.residuals(zc) ** 2))
+                except HydropumpError:
+                    c1 = math.inf
+                if c1 < c0:
+                    z_start = zc
+                    tried = ['the closed-form start (' + ', '.join(why) + ')']
+                else:
+                    prob.evaluate(z0, search=True)
+        start_nuis = dict(prob.nuis)
+        sol = _solve(prob, z_start, max_nfev)
+        if multistart and not prob.at_noise_level(sol.fun):
+            for f in (0.6, 1.6):
+                zs = coords.to_z(np.clip(theta0 * f, coords.lo, coords.hi))
+                try:
+                    prob.nuis = dict(start_nuis)
+                    prob.evaluate(zs, search=True)
+                    cand = _solve(prob, zs, max_nfev)
+                except HydropumpError:
+                    continue
+                tried.append(f'the start x {f:g}')
+                if cand.cost < sol.cost:
+                    sol = cand
+        if not np.isfinite(sol.cost) or not np.all(np.abs(sol.fun) < 1e6):
+            raise CalibrationError(f'the fit did not converge (tried from {", ".join(tried)}): '
+                                   'the model cannot follow the recordings from any start; '
+                                   'check the params file and the recorded signals')
+        z = sol.x
+        prob.evaluate(z, search=True)
+        method = ('trust-region least squares (scipy) from ' + ', '.join(tried) + '; '
+                  'sensitivities from copies of the plant stepped with the nominal run; '
+                  'delays and offsets by variable projection')
+        Jr, J_prior = _projected(prob, z)
+        held = singular_directions(Jr.T @ Jr + J_prior.T @ J_prior)
+        if held.shape[1]:
+            # Only a direction no data inform at all is held, at the start's value.
+            basis = np.linalg.qr(np.column_stack([held, np.eye(len(free))]))[0][
+                :, held.shape[1]:len(free)]
+            z_ref = z0 - basis @ (basis.T @ z0) + basis @ (basis.T @ z)
+            sol = _solve(prob, z_ref, max_nfev, basis=basis, z_ref=z_ref)
+            z = sol.x
+            prob.evaluate(z, search=True)
+            Jr, J_prior = _projected(prob, z)
+            method += '; a singular direction held at the start'
+        r = prob.data_residuals(z)
+        unc = analyse(Jr, r, free, prob.row_groups(), J_prior, held)
+        return _result(prob, base, free, coords, theta0, z, unc, before, notes, recordings,
+                       method, t_wall)
+    finally:
+        engine.close()
+
+
+def _projected(prob: Problem, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    from .uncertainty import reduce_nuisance
+    Jp, Jn = prob.sensitivities(z)
+    return reduce_nuisance(np.hstack([Jp, Jn]), prob.n_plant), prob.prior_rows(z)[1]
+
+
+def _result(prob, base, free, coords, theta0, z, unc, before, notes, recordings, method,
+            t_wall) -> Calibration:
+    exps = prob.exps
+    theta = prob.theta(z)
+    params = params_with(base, free, theta)
+    after = prob.predictions(z)
+    nuis = prob.evaluate(z)[1]
+    flags: list[str] = []
+    zlo, zhi = coords.bounds()
+    dth = coords.dtheta_dz(theta)
+    held_names = {n for h in unc.held for n in h['parameters']}
+    weak_of = {}
+    for w in unc.weak:
+        for n in w['parameters']:
+            weak_of.setdefault(n, w)
+    prior_of = {p.name: p.text for p in prob.priors}
+    estimates = []
+    for j, n in enumerate(free):
+        tol = 1e-6 * max(1.0, abs(zhi[j] - zlo[j]))
+        bound = 'lower' if z[j] <= zlo[j] + tol else 'upper' if z[j] >= zhi[j] - tol \
+            else None
+        if bound:
+            flags.append(f'{n} is on its {bound} bound ({theta[j]:.6g}): the optimum may '
+                         'lie outside the schema range, or the data pull it there')
+        se_z = float(unc.stderr[j])
+        rel = se_z * dth[j] / abs(theta[j]) if theta[j] else math.inf
+        good = rel <= DETERMINED_REL_STD and n not in held_names
+        reason = ''
+        if n in held_names:
+            h = next(h for h in unc.held if n in h['parameters'])
+            reason = (f'held at {theta[j]:.6g}: the recordings do not inform '
+                      f'{", ".join(h["parameters"])} apart')
+            if '/' in h['determined_combination'] or '*' in h['determined_combination']:
+                reason += f' (only {h["determined_combination"]} is determined)'
+        elif not good:
+            w = weak_of.get(n)
+            reason = (f'relative standard error {100 * rel:.2g} % (well determined below '
+                      f'{100 * DETERMINED_REL_STD:.2g} %)')
+            if w and len(w['parameters']) > 1:
+                reason += (f'; it moves with {", ".join(x for x in w["parameters"] if x != n)}'
+                           f': the data determine {w["determined_combination"]}')
+        estimates.append(ParameterEstimate(
+            n, float(theta[j]), float(theta0[j]), float(se_z * dth[j]),
+            interval(float(z[j]), se_z, bool(coords.log[j]), float(coords.scale[j])),
+            good, reason, n in held_names, bound, prior_of.get(n)))
+        if reason:
+            flags.append(f'{n}: {reason}')
+    for (i, s), (d, _) in nuis.items():
+        if prob.fit_delays and (d >= DELAY_MAX - 1e-6 or d <= DELAY_MIN + 1e-6):
+            flags.append(f'{"" if i is None else exps[i].name + ": "}the delay of {s} is '
+                         f'on its bound ({1e3 * d:.3g} ms)')
+    misfit = misfit_table(exps, after)
+    for name, per in misfit.items():
+        for s, m in per.items():
+            if m['ratio'] > MISFIT_RATIO:
+                flags.append(f'{name}: {s} is not fitted to its noise: residual rms '
+                             f'{m["rms"]:.3g} against a noise of {m["noise"]:.3g} (SI), '
+                             f'{m["ratio"]:.2g} x: the model leaves out something the data '
+                             'have')
+    delays, offs = _nuisance_tables(prob, nuis)
+    r = prob.residuals(z)
+    return Calibration(
+        params=params, start=base, estimates=estimates, correlation=unc.correlation,
+        singular_values=unc.singular_values, weak=unc.weak, held=unc.held,
+        fit=_fits(exps, after), fit_before=_fits(exps, before), misfit=misfit,
+        delays=delays, offsets=offs, sigma={e.name: dict(e.sigma) for e in exps},
+        flags=flags, notes=notes,
+        sources=[str(getattr(rec, 'source', '') or getattr(rec, 'name', ''))
+                 for rec in recordings],
+        free=free, tied=tied_values(params.flat(), free), priors=list(prob.priors),
+        method=method, n_simulations=prob.engine.n_trajectories,
+        wall_time=time.perf_counter() - t_wall,
+        cost=float(np.sum(r ** 2) / max(r.size, 1)), predictions=after,
+        predictions_before=before, experiments=exps, information=unc.information,
+        covariance=unc.covariance)
+
+
+@blas_single_threaded
+def validate(recordings: Sequence, params: Params, *, signals=None, fit_delays: bool = True,
+             before: Params | None = None) -> dict[str, Any]:
+    """How well ``params`` predicts recordings it was not fitted to (the measurement delays
+    re-estimated per signal, nothing else): fit % and the residual in SI units per recording
+    and signal, with the predictions (and those of ``before``, for overlays).
+
+    Returns a dict with ``fit``, ``misfit``, ``delays``, ``experiments``, ``predictions``,
+    and with ``before``: ``fit_before``, ``misfit_before``, ``predictions_before``.
+    """
+    errors = check_signals(signals)
+    if errors:
+        raise CalibrationError(errors)
+    exps = [experiment_from(r, params, signals) for r in recordings]
+    out: dict[str, Any] = {'experiments': exps}
+    for tag, p in (('', params), ('_before', before)):
+        if p is None:
+            continue
+        coords = Coordinates((), np.zeros(0, bool), np.zeros(0), np.zeros(0), np.zeros(0))
+        prob = Problem(Engine(p, (), exps, workers=1), coords, fit_delays=fit_delays)
+        z = np.zeros(0)
+        try:
+            prob.evaluate(z, search=True)
+        except HydropumpError as exc:
+            raise CalibrationError(f'the params file does not simulate these recordings: '
+                                   f'{exc}') from None
+        pred = prob.predictions(z)
+        out['fit' + tag] = _fits(exps, pred)
+        out['misfit' + tag] = misfit_table(exps, pred)
+        out['predictions' + tag] = pred
+        if not tag:
+            out['delays'] = _nuisance_tables(prob, prob.evaluate(z)[1])[0]
+    return out
+
+
+__all__ = ['Calibration', 'CalibrationError', 'DELAY_MAX', 'DELAY_MIN', 'DERIVED',
+           'DETERMINED_REL_STD', 'Experiment', 'ParameterEstimate', 'Prior', 'calibrate',
+           'check_free', 'delayed', 'experiment_from', 'fit_percent', 'fit_table',
+           'misfit_table', 'noise_level', 'params_with', 'parse_prior', 'simulate_experiment',
+           'tied_values', 'validate', 'write_calibration_report', 'write_params', 'write_text',
+           'write_validation_report']

@@ -1,0 +1,200 @@
+"""The engine that simulates: every experiment for a parameter vector, and the sensitivities.
+
+The model's outputs for a parameter vector are one :func:`hydropump_sim.simulate` per
+experiment. The sensitivities to the free parameters come from copies of the plant, one per
+perturbed parameter, stepped with the nominal run in one compiled loop
+(:func:`hydropump_sim.simulate.simulate_copies`): every copy takes the nominal run's steps,
+so the differences are smooth in the parameters (internal numerical differentiation: no
+step-size noise, a perturbation of 1e-4 in log coordinates is enough) and a copy costs six
+right-hand sides a step instead of a whole simulation's fourteen.
+
+Experiments (and, when there are fewer experiments than workers, groups of copies) run in
+parallel in forked worker processes, each keeping the validated parameter sets it built.
+Nothing here imports ROS.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor
+import math
+import multiprocessing
+import os
+from typing import Any
+
+import numpy as np
+
+from hydropump_sim.measure import SIGNAL_OUTPUTS
+from hydropump_sim.model import OUTPUTS
+from hydropump_sim.params import Params, params_from_dict
+from hydropump_sim.simulate import simulate_copies
+from hydropump_sim.trim import equilibrium
+
+from .data import Experiment
+
+WORKERS = min(4, os.cpu_count() or 1)
+_OUT_INDEX = {s: OUTPUTS.index(o) for s, o in SIGNAL_OUTPUTS.items() if o is not None}
+
+# Parameters the schema derives from others (the cross-checks of params.py): the derived
+# name -> (the parameters it follows, the relation, its value from the others).
+DERIVED: dict[str, tuple[tuple[str, ...], str, Callable[[Mapping[str, float]], float]]] = {
+    'actuator.h_a': (('actuator.mu_a', 'fluid.rho'), 'mu_a = h_a sqrt(2/rho) (eq. 4)',
+                     lambda f: f['actuator.mu_a'] / math.sqrt(2.0 / f['fluid.rho'])),
+    'actuator.d_a': (('actuator.S_a',), 'S_a = pi d_a^2 / 4',
+                     lambda f: math.sqrt(4.0 * f['actuator.S_a'] / math.pi)),
+    'spool.phi_s': (('spool.K_a', 'pump.x_a_max', 'spool.I_max'),
+                    'phi_s I_max = K_a x_a_max (design condition D1)',
+                    lambda f: f['spool.K_a'] * f['pump.x_a_max'] / f['spool.I_max']),
+}
+
+
+def tied_values(flat: Mapping[str, Any], free: Sequence[str]) -> dict[str, float]:
+    """The derived parameters that follow the ``free`` ones, recomputed from ``flat``."""
+    out = {}
+    values = dict(flat)
+    for name, (sources, _, fn) in DERIVED.items():
+        if any(s in free for s in sources):
+            out[name] = values[name] = fn(values)
+    return out
+
+
+def params_with(base: Params, names: Sequence[str], theta: Sequence[float]) -> Params:
+    """``base`` with the free parameters set and their ties followed (re-validated)."""
+    flat = base.flat()
+    flat.update({n: float(v) for n, v in zip(names, theta)})
+    flat.update(tied_values(flat, names))
+    return params_from_dict(flat)
+
+
+def _initial_state(params: Params, exp: Experiment):
+    if exp.start_signal is None:
+        return None   # the equilibrium at the first inputs
+    return equilibrium(params, exp.initial_current(params),
+                       load_pressure=None if exp.load_pressure is None
+                       else float(exp.load_pressure[0])).x
+
+
+def simulate_runs(plist: Sequence[Params], exp: Experiment, rtol: float | None = None
+                  ) -> list[dict[str, np.ndarray]]:
+    """The fine model's true signals on the experiment's grid (SI, gauge) for each parameter
+    set of ``plist``, the first one's steps shared (see the module)."""
+    n = exp.n
+    runs = simulate_copies(plist, (n - 1) * exp.dt, exp.current,
+                           load_pressure=exp.load_pressure, dt_out=exp.dt, dt_max=exp.dt,
+                           rtol=rtol, t0=exp.t0, x0=[_initial_state(p, exp) for p in plist])
+    return [{s: res.y[:n, _OUT_INDEX[s]] for s in exp.measured} for res in runs]
+
+
+def simulate_experiment(params: Params, exp: Experiment, rtol: float | None = None
+                        ) -> dict[str, np.ndarray]:
+    """The fine model's true signals on the experiment's grid (SI, gauge)."""
+    return simulate_runs([params], exp, rtol)[0]
+
+
+# Work shared with forked workers (set before the pool starts).
+_WORK: dict[str, Any] = {}
+
+
+def _job(job):
+    """One experiment for several parameter vectors, the first one's steps shared."""
+    e, thetas = job
+    # One validated parameter set per vector, not per experiment (validation takes ms).
+    cache = _WORK.setdefault('params', {})
+    plist = []
+    for theta in thetas:
+        key = np.asarray(theta).tobytes()
+        if key not in cache:
+            if len(cache) > 64:
+                cache.clear()
+            cache[key] = params_with(_WORK['base'], _WORK['names'], theta)
+        plist.append(cache[key])
+    return simulate_runs(plist, _WORK['exps'][e], _WORK['rtol'])
+
+
+class Engine:
+    """Simulations of the experiments of a calibration (see the module).
+
+    Parameters
+    ----------
+    base : Params
+        The parameters the free ones are set in.
+    names : sequence of str
+        The free parameters, in the order of the vectors ``theta``.
+    exps : sequence of Experiment
+    rtol : float
+        The integrator's relative tolerance.
+    workers : int
+        Worker processes (1: in this process).
+    """
+
+    def __init__(self, base: Params, names: Sequence[str], exps: Sequence[Experiment], *,
+                 rtol: float = 1e-5, workers: int = WORKERS):
+        self.base, self.names, self.exps = base, tuple(names), list(exps)
+        self.rtol = rtol
+        self.workers = max(1, int(workers))
+        self.n_trajectories = 0       # simulated runs, a copy counted as one
+        self.n_loops = 0              # compiled loops (a nominal run with its copies is one)
+        self._pool = None
+        self._cache: dict[bytes, list[dict[str, np.ndarray]]] = {}
+
+    def _run(self, jobs):
+        self.n_loops += len(jobs)
+        self.n_trajectories += sum(len(th) for _, th in jobs)
+        if self.workers > 1 and len(jobs) > 1:
+            return list(self._executor().map(_job, jobs))
+        _WORK.update(base=self.base, names=self.names, exps=self.exps, rtol=self.rtol,
+                     params=_WORK.get('params', {}) if _WORK.get('exps') is self.exps else {})
+        return [_job(j) for j in jobs]
+
+    def outputs(self, theta: np.ndarray) -> list[dict[str, np.ndarray]]:
+        """The true signals of every experiment at ``theta`` (cached)."""
+        key = np.asarray(theta, float).tobytes()
+        if key not in self._cache:
+            res = self._run([(e, [theta]) for e in range(len(self.exps))])
+            self._remember(key, [r[0] for r in res])
+        return self._cache[key]
+
+    def sensitivity_runs(self, theta: np.ndarray, thetas: Sequence[np.ndarray]
+                         ) -> tuple[list[dict], list[list[dict]]]:
+        """The true signals at ``theta`` and at each perturbed vector of ``thetas``, every
+        perturbed run stepped with the nominal one: ``(nominal[e], perturbed[j][e])``."""
+        m = len(thetas)
+        # Fewer experiments than workers: split the copies (each group carries the nominal
+        # run, which chooses the steps).
+        groups = max(1, min(m, math.ceil(self.workers / max(len(self.exps), 1))))
+        bounds = np.linspace(0, m, groups + 1).round().astype(int)
+        jobs, where = [], []
+        for e in range(len(self.exps)):
+            for g in range(groups):
+                part = list(range(bounds[g], bounds[g + 1]))
+                if part:
+                    jobs.append((e, [theta] + [thetas[j] for j in part]))
+                    where.append((e, part))
+        res = self._run(jobs)
+        nominal: list[dict] = [None] * len(self.exps)
+        perturbed = [[None] * len(self.exps) for _ in range(m)]
+        for (e, part), runs in zip(where, res):
+            nominal[e] = runs[0]
+            for j, run in zip(part, runs[1:]):
+                perturbed[j][e] = run
+        self._remember(np.asarray(theta, float).tobytes(), nominal)
+        return nominal, perturbed
+
+    def _remember(self, key: bytes, sims) -> None:
+        if len(self._cache) > 32:
+            for k in list(self._cache)[:16]:
+                del self._cache[k]
+        self._cache[key] = sims
+
+    def _executor(self):
+        if self._pool is None:
+            _WORK.update(base=self.base, names=self.names, exps=self.exps, rtol=self.rtol,
+                         params={})
+            self._pool = ProcessPoolExecutor(self.workers,
+                                             mp_context=multiprocessing.get_context('fork'))
+        return self._pool
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None

@@ -1,0 +1,284 @@
+"""What a calibration writes: the calibrated params file, ``result.json``, the report page
+with its figures (measured against the model before and after, residuals, the correlation
+heat map), and the same for a validation.
+
+A file is written through a temporary file renamed into place, so that a full disk or an
+interrupted run never leaves half a params file where a good one was. Nothing here imports
+ROS.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+import json
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from hydropump_sim.params import Params
+from hydropump_sim.schema import dump_ros_yaml, spec_map
+
+from .data import CalibrationError
+from .engine import DERIVED
+
+# Display units of the compared signals: (scale from SI, unit).
+DISPLAY = {'line_flow': (6.0e4, 'L/min'), 'pump_flow': (6.0e4, 'L/min'),
+           'load_flow': (6.0e4, 'L/min'), 'line_pressure': (1e-5, 'bar'),
+           'actuator_pressure': (1e-5, 'bar'), 'spool_position': (1e3, 'mm'),
+           'actuator_position': (1e3, 'mm')}
+SI_UNITS = {'line_flow': 'm^3/s', 'pump_flow': 'm^3/s', 'load_flow': 'm^3/s',
+            'line_pressure': 'Pa', 'actuator_pressure': 'Pa', 'spool_position': 'm',
+            'actuator_position': 'm'}
+
+
+def write_text(path, text: str, what: str) -> Path:
+    """``text`` into ``path`` through a temporary file renamed into place."""
+    path = Path(path)
+    tmp = path.with_name(f'.{path.name}.tmp-{os.getpid()}')
+    try:
+        tmp.write_text(text, encoding='utf-8')
+        os.replace(tmp, path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise CalibrationError(f'{path}: cannot write the {what} ({exc.strerror or exc})') \
+            from None
+    return path
+
+
+def estimate_text(p) -> str:
+    """One parameter's estimate in words: value, standard error, interval, and the flag."""
+    if p.held:
+        return f'{p.reason}'
+    rel = 100 * p.relative_stderr
+    text = (f'+- {p.stderr:.3g} ({rel:.2g} %), 95 % in [{p.ci95[0]:.6g}, {p.ci95[1]:.6g}]'
+            if math.isfinite(rel) else 'no standard error')
+    if not p.well_determined:
+        text += ' POORLY DETERMINED: ' + p.reason
+    if p.prior:
+        text += f'; prior {p.prior}'
+    return text
+
+
+def write_params(cal, path, header_lines: Sequence[str] = ()) -> Path:
+    """The calibrated parameters as a params file in the form of ``config/pump.yaml``, with a
+    header that says where they came from."""
+    lines = ['Calibrated by hydropump calibrate from:']
+    lines += [f'  {s}' for s in cal.sources]
+    for p in cal.estimates:
+        lines.append(f'free {p.name} = {p.value:.6g} (start {p.initial:.6g}) '
+                     + estimate_text(p))
+    for n, v in cal.tied.items():
+        lines.append(f'tied {n} = {v:.6g} ({DERIVED[n][1]})')
+    for name, per in cal.fit.items():
+        lines.append(f'fit % {name}: ' + ', '.join(f'{s} {v:.2f}' for s, v in per.items()))
+    lines += list(header_lines)
+    comments = {p.name: f'calibrated (start {p.initial:.6g})' for p in cal.estimates}
+    comments.update({n: f'tied: {DERIVED[n][1]}' for n in cal.tied})
+    text = dump_ros_yaml(cal.params.flat(), header='\n'.join('# ' + ln for ln in lines),
+                         comments=comments, specs=spec_map(Params))
+    return write_text(path, text, 'params file')
+
+
+# ---- figures -------------------------------------------------------------------------------
+
+def _pyplot():
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def _safe(name: str) -> str:
+    return ''.join(c if c.isalnum() or c in '-_' else '_' for c in name)[:60]
+
+
+def plot_comparison(exp, after: dict, path: Path, before: dict | None = None,
+                    title: str = '', labels=('model, start', 'model, calibrated')) -> Path:
+    """One recording: per signal, measured, the model before (dashed) and after, and the
+    residual beside it."""
+    plt = _pyplot()
+    sigs = list(exp.measured)
+    fig, axes = plt.subplots(len(sigs), 2, figsize=(11, 1.9 * len(sigs) + 0.6), squeeze=False,
+                             gridspec_kw={'width_ratios': [3, 1.2]})
+    t = np.arange(exp.n) * exp.dt
+    for row, s in enumerate(sigs):
+        k, unit = DISPLAY.get(s, (1.0, ''))
+        ax, axr = axes[row]
+        ax.plot(t, exp.measured[s] * k, color='0.6', lw=0.6, label='measured')
+        if before is not None:
+            ax.plot(t, before[s] * k, 'C1--', lw=0.9, label=labels[0])
+        ax.plot(t, after[s] * k, 'C0', lw=1.0, label=labels[1])
+        ax.set_ylabel(f'{s}\n[{unit}]', fontsize=8)
+        ax.grid(alpha=0.3)
+        if before is not None:
+            axr.plot(t, (exp.measured[s] - before[s]) * k, 'C1', lw=0.4, alpha=0.6)
+        axr.plot(t, (exp.measured[s] - after[s]) * k, 'C3', lw=0.5)
+        axr.set_title(f'measured - model [{unit}]', fontsize=8)
+        axr.grid(alpha=0.3)
+        if row == 0:
+            ax.legend(fontsize=7, loc='best')
+    axes[-1][0].set_xlabel('t [s]')
+    axes[-1][1].set_xlabel('t [s]')
+    fig.suptitle(title or exp.name, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def plot_correlation(names: Sequence[str], corr: np.ndarray, path: Path) -> Path:
+    plt = _pyplot()
+    n = len(names)
+    fig, ax = plt.subplots(figsize=(1.2 * n + 2.5, 1.0 * n + 1.8))
+    im = ax.imshow(np.nan_to_num(corr), vmin=-1, vmax=1, cmap='RdBu_r')
+    ax.set_xticks(range(n), [s.split('.')[-1] for s in names], rotation=45, ha='right')
+    ax.set_yticks(range(n), [s.split('.')[-1] for s in names])
+    for i in range(n):
+        for j in range(n):
+            v = corr[i, j]
+            ax.text(j, i, '-' if not np.isfinite(v) else f'{v:.2f}', ha='center', va='center',
+                    fontsize=8)
+    fig.colorbar(im, ax=ax, shrink=0.8, label='correlation')
+    ax.set_title('parameter correlations')
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+# ---- tables ------------------------------------------------------------------------------
+
+def _table(head, rows) -> str:
+    out = ['| ' + ' | '.join(head) + ' |', '|' + '---|' * len(head)]
+    out += ['| ' + ' | '.join(str(c) for c in r) + ' |' for r in rows]
+    return '\n'.join(out)
+
+
+def fit_table(fit: dict, before: dict | None = None) -> str:
+    sigs = sorted({s for per in fit.values() for s in per})
+    rows = []
+    for name, per in fit.items():
+        cells = []
+        for s in sigs:
+            if s not in per:
+                cells.append('')
+            elif before is not None:
+                cells.append(f'{before[name][s]:.1f} -> {per[s]:.2f}')
+            else:
+                cells.append(f'{per[s]:.2f}')
+        rows.append([name] + cells)
+    return _table(['recording'] + sigs, rows)
+
+
+def misfit_rows(misfit: dict, before: dict | None = None) -> list[list[str]]:
+    """Per recording and signal: the residual rms in SI units (and in display units), the
+    noise level, their ratio, and the largest residual."""
+    rows = []
+    for name, per in misfit.items():
+        for s, m in per.items():
+            k, unit = DISPLAY.get(s, (1.0, ''))
+            cells = [name, s, f'{m["rms"]:.4g} {SI_UNITS.get(s, "")} ({m["rms"] * k:.3g} '
+                     f'{unit})', f'{m["noise"] * k:.3g} {unit}', f'{m["ratio"]:.2f}',
+                     f'{m["max_abs"] * k:.3g} {unit}']
+            if before is not None:
+                b = before[name][s]
+                cells.insert(2, f'{b["rms"]:.4g} {SI_UNITS.get(s, "")}')
+            rows.append(cells)
+    return rows
+
+
+def misfit_table(misfit: dict, before: dict | None = None) -> str:
+    head = ['recording', 'signal', 'rms residual', 'noise', 'rms / noise', 'max |residual|']
+    if before is not None:
+        head.insert(2, 'rms before')
+    return _table(head, misfit_rows(misfit, before))
+
+
+def write_calibration_report(cal, out: Path, *, plots: bool = True) -> Path:
+    """``result.json``, ``report.md`` and the figures of a calibration into ``out``."""
+    out = Path(out)
+    write_text(out / 'result.json', json.dumps(cal.to_dict(), indent=2), 'result')
+    figs = []
+    if plots:
+        for k, (e, a, b) in enumerate(zip(cal.experiments, cal.predictions,
+                                           cal.predictions_before)):
+            figs.append(plot_comparison(e, a, out / f'compare_{k + 1}_{_safe(e.name)}.png', b))
+        figs.append(plot_correlation(cal.free, cal.correlation, out / 'correlation.png'))
+    rows = []
+    for p in cal.estimates:
+        rel = 100 * p.relative_stderr
+        rows.append([p.name, f'{p.initial:.6g}', f'{p.value:.6g}',
+                     f'{p.stderr:.3g} ({rel:.2g} %)' if math.isfinite(rel) else '-',
+                     f'[{p.ci95[0]:.6g}, {p.ci95[1]:.6g}]',
+                     'held' if p.held else 'yes' if p.well_determined else '**no**',
+                     p.on_bound or '', p.prior or ''])
+    md = ['# Calibration', '', f'Recordings: {", ".join(cal.sources)}', '',
+          f'Method: {cal.method}; {cal.n_simulations} simulated runs, {cal.wall_time:.1f} s.',
+          '', '## Parameters', '',
+          _table(['parameter', 'start', 'calibrated', 'standard error', '95 % interval',
+                  'well determined', 'bound', 'prior'], rows), '']
+    for p in cal.estimates:
+        if p.reason:
+            md.append(f'- {p.name}: {p.reason}')
+    if cal.tied:
+        md += ['', 'Tied (moved with the free ones): ' + ', '.join(
+            f'{n} = {v:.6g}' for n, v in cal.tied.items()), '']
+    md += ['', '## Identifiability', '',
+           'Singular values of the scaled sensitivity matrix (relative sensitivities, noise-'
+           'weighted, delays projected out): '
+           + ', '.join(f'{v:.3g}' for v in cal.singular_values), '']
+    for u in cal.weak:
+        md.append(f'- **Weak direction** ({100 * u["relative_stderr"]:.2g} % standard error): '
+                  f'{", ".join(u["parameters"])}; determined: {u["determined_combination"]}; '
+                  f'separated by: {", ".join(u.get("separated_by") or []) or "-"}')
+    for u in cal.held:
+        md.append(f'- **Held** (singular): {", ".join(u["parameters"])}; determined: '
+                  f'{u["determined_combination"]}')
+    md += ['', '## Misfit per recording and signal', '',
+           "The residual (measured - model) after calibration, beside each signal's noise "
+           'level: a ratio near 1 is a fit to the noise; above 1.5 the model leaves out '
+           'something the data have.', '', misfit_table(cal.misfit), '',
+           '## Fit per recording and signal (%, start -> calibrated)', '',
+           fit_table(cal.fit, cal.fit_before), '', '## Measurement delays [ms]', '',
+           _table(['recording'] + sorted({s for v in cal.delays.values() for s in v}),
+                  [[n] + [f'{1e3 * v[s]:.2f}' if s in v else '' for s in
+                          sorted({s for v in cal.delays.values() for s in v})]
+                   for n, v in cal.delays.items()]), '']
+    if cal.flags:
+        md += ['## Flags', ''] + [f'- {f}' for f in cal.flags] + ['']
+    if cal.notes:
+        md += ['## Notes', ''] + [f'- {n}' for n in cal.notes] + ['']
+    if figs:
+        md += ['## Figures', ''] + [f'![{f.stem}]({f.name})' for f in figs]
+    return write_text(out / 'report.md', '\n'.join(md) + '\n', 'report')
+
+
+def write_validation_report(val: dict, out: Path, params_file: str,
+                            before_file: str | None = None, *, plots: bool = True) -> Path:
+    """``validation.json``, ``validation.md`` and the overlays of :func:`..validate`."""
+    out = Path(out)
+    data = {'params': params_file, 'fit_percent': val['fit'], 'misfit': val['misfit'],
+            'delays_s': val['delays']}
+    if before_file:
+        data.update(before=before_file, fit_percent_before=val['fit_before'],
+                    misfit_before=val['misfit_before'])
+    write_text(out / 'validation.json', json.dumps(data, indent=2), 'validation result')
+    figs = []
+    if plots:
+        for k, e in enumerate(val['experiments']):
+            b = val['predictions_before'][k] if before_file else None
+            figs.append(plot_comparison(e, val['predictions'][k],
+                                        out / f'validate_{k + 1}_{_safe(e.name)}.png', b,
+                                        title=f'{e.name}: {params_file}',
+                                        labels=(f'model, {before_file}',
+                                                f'model, {params_file}')))
+    md = ['# Validation', '', f'Params file: {params_file}'
+          + (f' (before: {before_file})' if before_file else ''), '',
+          '## Residual per recording and signal', '',
+          misfit_table(val['misfit'], val.get('misfit_before') if before_file else None), '',
+          '## Fit %', '', fit_table(val['fit'], val.get('fit_before') if before_file else None),
+          '']
+    md += [f'![{f.stem}]({f.name})' for f in figs]
+    return write_text(out / 'validation.md', '\n'.join(md) + '\n', 'validation report')
