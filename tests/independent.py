@@ -121,26 +121,30 @@ def run(params, current: np.ndarray, load_pressure: np.ndarray | None = None,
         u = np.array([current[a] - params.I_nominal, load[a], params.line.xi_u,
                       params.pump.f_p])
         t0, t1 = a * dt, b * dt
-        sol = solve_ivp(lambda t, y: rhs(t, y, u, params, p=p), (t0, t1), x, method='Radau',
-                        rtol=rtol, atol=rtol * scale, dense_output=True,
-                        first_step=1e-6)
+        sol = solve_ivp(rhs, (t0, t1), x, method='Radau', args=(u, params, 'fine', None, p),
+                        rtol=rtol, atol=rtol * scale, dense_output=True, first_step=1e-6)
         assert sol.success, sol.message
         r.pieces.append((t0, t1, u, sol.sol))
         x = sol.y[:, -1].copy()
     return r
 
 
-def measure(r: Run, sensors: dict[str, Sensor], seed: int) -> dict[str, np.ndarray]:
-    """Every signal of ``sensors`` as the bench records it on the grid ``k dt`` (SI, gauge;
-    NaN where a message was dropped)."""
-    rng = np.random.default_rng(seed)
+def sample(r: Run, sensors: dict[str, Sensor]) -> dict[str, np.ndarray]:
+    """Every signal of ``sensors`` on the grid ``k dt`` after its sensor's delay, before
+    noise (SI, gauge): what :func:`noisy` adds the bench's noise to."""
     t = np.arange(r.n) * r.dt
+    return {name: r.current.copy() if name == 'solenoid_current'
+            else r.signal(name, t - s.delay) for name, s in sensors.items()}
+
+
+def noisy(clean: dict[str, np.ndarray], sensors: dict[str, Sensor], seed
+          ) -> dict[str, np.ndarray]:
+    """The bench's records of ``clean`` signals: noise from a generator seeded ``seed``,
+    quantisation, dropped messages (NaN). ``seed`` is an int or a tuple of ints."""
+    rng = np.random.default_rng(seed)
     out = {}
     for name, s in sensors.items():
-        if name == 'solenoid_current':
-            y = r.current.copy()        # the current held from each sample
-        else:
-            y = r.signal(name, t - s.delay)
+        y = clean[name].copy()
         if s.noise:
             y = y + rng.normal(0.0, s.noise, y.size)
         if s.quantum:
@@ -149,6 +153,12 @@ def measure(r: Run, sensors: dict[str, Sensor], seed: int) -> dict[str, np.ndarr
             y[1:][rng.random(y.size - 1) < s.drop] = np.nan
         out[name] = y
     return out
+
+
+def measure(r: Run, sensors: dict[str, Sensor], seed: int) -> dict[str, np.ndarray]:
+    """Every signal of ``sensors`` as the bench records it on the grid ``k dt`` (SI, gauge;
+    NaN where a message was dropped)."""
+    return noisy(sample(r, sensors), sensors, seed)
 
 
 def write(path: Path, dt: float, signals: dict[str, np.ndarray], p_atm: float,

@@ -73,16 +73,25 @@ def test_standard_plan_holds_its_definition(params):
     np.testing.assert_array_equal(sine.load_pressure, np.repeat([P_u, low], 2000))
 
 
-def test_standard_plan_keeps_the_calibration_candidates_levels(params):
-    """The calibration's candidate experiments (ident.design) and the plan hold the same."""
-    plan = {e.label: held_inputs(e, params) for e in standard_plan(params).experiments}
-    for name, inputs in candidate_inputs(params).items():
-        np.testing.assert_allclose(plan[name].current, inputs['current'], atol=1e-12,
-                                   err_msg=name)
-        load = inputs['load_pressure']
-        np.testing.assert_array_equal(
-            plan[name].load_pressure, np.full(inputs['current'].size, params.line.P_u)
-            if load is None else load, err_msg=name)
+def test_the_calibration_candidates_are_the_standard_plan(params):
+    """The calibration's candidate experiments (ident.design) are the plan's four, at the
+    levels eq. 2 and eq. 10 give: the regulating range's middle +- 10 and 20 % of it."""
+    lo, hi = params.current_range
+    mid, span = 0.5 * (lo + hi), hi - lo
+    up = [mid + f * span for f in (-0.2, -0.1, 0.0, 0.1, 0.2)]
+    cand = candidate_inputs(params)
+    assert list(cand) == ['staircase up', 'staircase down',
+                          'staircases at a lower load pressure', 'load-pressure steps']
+    np.testing.assert_allclose(cand['staircase up']['current'], np.repeat(up, 1000),
+                               atol=1e-12)
+    np.testing.assert_allclose(cand['staircase down']['current'], np.repeat(up[::-1], 1000),
+                               atol=1e-12)
+    low = params.line.P_u - 4e6
+    np.testing.assert_array_equal(
+        cand['staircases at a lower load pressure']['load_pressure'], np.full(9000, low))
+    np.testing.assert_array_equal(cand['load-pressure steps']['load_pressure'],
+                                  np.repeat([params.line.P_u, low, params.line.P_u], 1000))
+    np.testing.assert_allclose(cand['load-pressure steps']['current'], mid, atol=1e-12)
 
 
 def test_the_example_file_is_the_standard_plan(params):

@@ -30,32 +30,19 @@ DELAY_PLAN = 0.05
 
 # --------------------------------------------------------------------------------------------
 
-def _staircase(levels, dwell, dt):
-    return np.concatenate([np.full(int(round(dwell / dt)), v) for v in levels])
-
-
 def candidate_inputs(params, dt: float = 1e-3, dwell: float = 1.0) -> dict[str, dict]:
-    """The standard experiments: current staircases up and down in the regulating range at
-    the params file's load pressure, the same at a load pressure 40 bar lower, and a
-    load-pressure step at a held current (inputs: absolute current A, gauge load Pa)."""
-    lo, hi = params.current_range
-    mid = 0.5 * (lo + hi)
-    span = hi - lo
-    up = [mid - 0.2 * span, mid - 0.1 * span, mid, mid + 0.1 * span, mid + 0.2 * span]
-    P_u = params.line.P_u
-    n = len(up) * int(round(dwell / dt))
-    low = max(P_u - 4.0e6, 0.3 * P_u)
-    step_p = np.concatenate([np.full(int(round(1.0 / dt)), P_u),
-                             np.full(int(round(1.0 / dt)), low),
-                             np.full(int(round(1.0 / dt)), P_u)])
-    return {
-        'staircase up': {'current': _staircase(up, dwell, dt), 'load_pressure': None},
-        'staircase down': {'current': _staircase(up[::-1], dwell, dt), 'load_pressure': None},
-        'staircases at a lower load pressure': {
-            'current': _staircase(up + up[::-1][1:], dwell, dt),
-            'load_pressure': np.full(n + (len(up) - 1) * int(round(dwell / dt)), low)},
-        'load-pressure steps': {'current': np.full(step_p.size, mid), 'load_pressure': step_p},
-    }
+    """The standard experiments, the calibration campaign of ``hydropump record standard``
+    (:func:`hydropump_ctrl.experiments.plans.standard_plan`, the held-out one aside): current
+    staircases up and down in the regulating range at the params file's load pressure, the
+    same at a load pressure 40 bar lower, and load-pressure steps at a held current (inputs
+    held per sample ``dt``: absolute current A, gauge load pressure Pa)."""
+    from ..experiments.plans import held_inputs, standard_plan
+    out = {}
+    for e in standard_plan(params, dwell=dwell).experiments:
+        if not e.held_out:
+            h = held_inputs(e, params, dt)
+            out[e.label] = {'current': h.current, 'load_pressure': h.load_pressure}
+    return out
 
 
 CANDIDATES = ('staircase up', 'staircase down', 'staircases at a lower load pressure',
@@ -80,20 +67,32 @@ def experiment_information(params, free: Sequence[str], inputs: dict, sigma: dic
     return Jr.T @ Jr
 
 
+# A candidate adds what the recordings lack when it informs the direction at least this many
+# times more per second than they do; one of the same kind only averages more noise.
+RATE_RATIO = 2.0
+
+
 def separating_experiments(params, free: Sequence[str], information: np.ndarray,
-                           direction: np.ndarray, sigma: dict) -> list[tuple[str, float]]:
-    """Which candidate experiments, added to recordings of Fisher ``information``, determine
-    ``direction`` (relative standard error below :data:`DETERMINED_REL_STD`), with the
-    standard error it would have."""
+                           direction: np.ndarray, sigma: dict, duration: float
+                           ) -> list[tuple[str, float]]:
+    """Which candidate experiments, added to recordings of Fisher ``information`` and
+    ``duration`` seconds, determine ``direction`` (relative standard error below
+    :data:`DETERMINED_REL_STD`) by information the recordings lack (at least
+    :data:`RATE_RATIO` times theirs per second along it), with the standard error it would
+    have."""
     good = []
     w = np.asarray(direction, float)
+    w = w / np.linalg.norm(w)
+    rate = float(w @ information @ w) / max(duration, 1e-9)
     for name, inputs in candidate_inputs(params).items():
         try:
-            info = information + experiment_information(params, free, inputs, sigma)
+            cand = experiment_information(params, free, inputs, sigma)
         except HydropumpError:   # a candidate the model cannot run is no candidate
             continue
-        var = float(w @ np.linalg.pinv(info) @ w)
-        if var > 0 and math.sqrt(var) < DETERMINED_REL_STD:
+        t_c = inputs['current'].size * 1e-3
+        var = float(w @ np.linalg.pinv(information + cand) @ w)
+        new = float(w @ cand @ w) / t_c >= RATE_RATIO * rate
+        if new and var > 0 and math.sqrt(var) < DETERMINED_REL_STD:
             good.append((name, math.sqrt(var)))
     return good
 
@@ -122,13 +121,15 @@ def suggest(cal: Calibration) -> None:
     exps = cal.experiments
     sigma = {s: float(np.median([e.sigma[s] for e in exps if s in e.sigma]))
              for s in {s for e in exps for s in e.measured}}
+    duration = sum(e.duration for e in exps)
     for u in dirs:
         sep = separating_experiments(cal.params, cal.free, cal.information,
-                                     np.array(u['direction']), sigma)
+                                     np.array(u['direction']), sigma, duration)
         u['separated_by'] = [name for name, _ in sep]
         u['separated_stderr'] = {name: se for name, se in sep}
         cal.flags.append(f'to determine {", ".join(u["parameters"])}, add: '
                          + (', '.join(f'{n} ({100 * se:.2g} %)' for n, se in sep) if sep
-                            else 'none of the standard experiments suffices with these '
-                            'signals (a measurement of another signal, or a prior, is '
-                            'needed)'))
+                            else 'none of the standard experiments adds what these recordings '
+                            'lack with these signals (longer recordings of the same kind '
+                            'lower the error as one over the square root of their length; '
+                            'else measure another signal, or give a prior)'))

@@ -302,13 +302,30 @@ def _name_of(topic: str, default: str) -> str:
 _SCALAR_FIELDS = ('data', 'fluid_pressure', 'temperature', 'illuminance', 'range')
 
 
+# How far a topic's time may fall behind its latest message before the bag counts as holding
+# two runs (a simulator restarted under one recording): late messages are not this late.
+TIME_BACK_NS = 500_000_000
+
+
 def _messages(stream: Stream, where: str) -> tuple[np.ndarray, list, str]:
-    """Times [ns] and messages of a topic, and ``'header'`` or ``'log'``."""
+    """Times [ns] and messages of a topic, and ``'header'`` or ``'log'``; a time that goes
+    back (beyond a late message) is refused: the bag then holds more than one run."""
     msgs = decode(stream, where)
     st = header_stamps(msgs)
-    if st is not None:
-        return st, msgs, 'header'
-    return np.asarray(stream.log_ns, dtype=np.int64), msgs, 'log'
+    t, kind = (st, 'header') if st is not None else \
+        (np.asarray(stream.log_ns, dtype=np.int64), 'log')
+    if t.size > 1:
+        back = np.maximum.accumulate(t) - t
+        k = int(np.argmax(back))
+        if back[k] > TIME_BACK_NS:
+            first = int(t.min())
+            raise BagError(
+                f'{where}: time goes back on {stream.topic}: message {k + 1} of {t.size} is '
+                f'stamped {(t[k] - first) * 1e-9:.6g} s, after '
+                f'{(int(np.maximum.accumulate(t)[k]) - first) * 1e-9:.6g} s: the bag holds '
+                'more than one run (a restarted simulator); record one run per bag, or cut '
+                'it where time goes back')
+    return t, msgs, kind
 
 
 def _scalars(msgs: list, stream: Stream, where: str) -> np.ndarray:

@@ -293,14 +293,6 @@ def calibrate(recordings: Sequence, base: Params, free: Sequence[str], *,
             before = prob.predictions(z0)
         except HydropumpError as exc:
             raise CalibrationError(f'the start parameters do not simulate: {exc}') from None
-        # A parameter no signal of any recording depends on cannot be informed.
-        Jp0, _ = prob.sensitivities(z0)
-        dead = [n for j, n in enumerate(free) if not np.any(Jp0[:, j])]
-        if dead:
-            raise CalibrationError(
-                [f'{n} cannot be informed by these recordings: no measured signal depends on '
-                 'it in these runs (for instance a relief valve never reached, or a friction '
-                 'set to zero)' for n in dead])
         tried = ['the start']
         z_start = z0
         if closed_form_start:
@@ -318,6 +310,14 @@ def calibrate(recordings: Sequence, base: Params, free: Sequence[str], *,
                     tried = ['the closed-form start (' + ', '.join(why) + ')']
                 else:
                     prob.evaluate(z0, search=True)
+        # A parameter no signal of any recording depends on cannot be informed.
+        Jp0, _ = prob.sensitivities(z_start)
+        dead = [n for j, n in enumerate(free) if not np.any(Jp0[:, j])]
+        if dead:
+            raise CalibrationError(
+                [f'{n} cannot be informed by these recordings: no measured signal depends on '
+                 'it in these runs (for instance a relief valve never reached, or a friction '
+                 'set to zero)' for n in dead])
         start_nuis = dict(prob.nuis)
         sol = _solve(prob, z_start, max_nfev)
         if multistart and not prob.at_noise_level(sol.fun):
@@ -393,7 +393,7 @@ def _result(prob, base, free, coords, theta0, z, unc, before, notes, recordings,
                          'lie outside the schema range, or the data pull it there')
         se_z = float(unc.stderr[j])
         rel = se_z * dth[j] / abs(theta[j]) if theta[j] else math.inf
-        good = rel <= DETERMINED_REL_STD and n not in held_names
+        good = bool(rel <= DETERMINED_REL_STD) and n not in held_names
         reason = ''
         if n in held_names:
             h = next(h for h in unc.held if n in h['parameters'])
@@ -408,16 +408,21 @@ def _result(prob, base, free, coords, theta0, z, unc, before, notes, recordings,
             if w and len(w['parameters']) > 1:
                 reason += (f'; it moves with {", ".join(x for x in w["parameters"] if x != n)}'
                            f': the data determine {w["determined_combination"]}')
-        estimates.append(ParameterEstimate(
-            n, float(theta[j]), float(theta0[j]), float(se_z * dth[j]),
-            interval(float(z[j]), se_z, bool(coords.log[j]), float(coords.scale[j])),
-            good, reason, n in held_names, bound, prior_of.get(n)))
+            if rel > 0.3:
+                reason += ('; so loosely bound that its interval, a linear approximation, is '
+                           'only indicative')
+        held = n in held_names
+        se = math.inf if held else float(se_z * dth[j])
+        ci = (math.nan, math.nan) if held else \
+            interval(float(z[j]), se_z, bool(coords.log[j]), float(coords.scale[j]))
+        estimates.append(ParameterEstimate(n, float(theta[j]), float(theta0[j]), se, ci, good,
+                                           reason, held, bound, prior_of.get(n)))
         if reason:
             flags.append(f'{n}: {reason}')
     for (i, s), (d, _) in nuis.items():
-        if prob.fit_delays and (d >= DELAY_MAX - 1e-6 or d <= DELAY_MIN + 1e-6):
+        if prob.fit_delays and d >= DELAY_MAX - 1e-6:
             flags.append(f'{"" if i is None else exps[i].name + ": "}the delay of {s} is '
-                         f'on its bound ({1e3 * d:.3g} ms)')
+                         f'on its upper bound ({1e3 * d:.3g} ms): the signal may lag more')
     misfit = misfit_table(exps, after)
     for name, per in misfit.items():
         for s, m in per.items():

@@ -289,6 +289,7 @@ class Problem:
         self._prior_sd = np.array([self._prior_sd_of(j, p) for j, p in
                                    zip(self._prior_cols, self.priors)])
         self._evals: dict[bytes, tuple] = {}
+        self._sens: dict[bytes, tuple] = {}
         self._progress = progress
 
     # ---- priors ------------------------------------------------------------------------
@@ -418,6 +419,9 @@ class Problem:
         with the nominal run (:meth:`.engine.Engine.sensitivity_runs`, the nuisance
         parameters held), and the exact columns of the free nuisance parameters (a delay:
         ``-y'(t - d)``; an offset: one). A delay on a bound is not free."""
+        key = np.asarray(z, float).tobytes()
+        if nuis is None and key in self._sens:
+            return self._sens[key]
         n = self.n_plant
         lo, hi = self.coords.bounds()
         steps = np.empty(n)
@@ -431,8 +435,8 @@ class Problem:
             steps[j] = h
             thetas.append(self.coords.to_theta(zj))
         nominal, perturbed = self.engine.sensitivity_runs(self.theta(z), thetas)
+        held = nuis is not None
         if nuis is None:
-            key = np.asarray(z, float).tobytes()
             nuis = self._evals[key][1] if key in self._evals else \
                 self._settle(key, nominal, False)[1]
         r0 = np.concatenate(list(self._residual_blocks(self._apply(nominal, nuis))))
@@ -442,8 +446,8 @@ class Problem:
             Jp[:, j] = (rj - r0) / steps[j]
         rows = dict(zip(self.blocks, self.row_groups()))
         cols = []
-        for key, blocks in self.keys.items():
-            d, _ = nuis[key]
+        for nkey, blocks in self.keys.items():
+            d, _ = nuis[nkey]
             cd, co = np.zeros(r0.size), np.zeros(r0.size)
             for i, s in blocks:
                 e = self.exps[i]
@@ -453,11 +457,17 @@ class Problem:
                 co[g] = ok / e.sigma[s]
             if self.fit_delays and DELAY_MIN < d < DELAY_MAX:
                 cols.append(cd)
-            if key in self.with_offset:
+            if nkey in self.with_offset:
                 cols.append(co)
         Jn = np.column_stack(cols) if cols else np.zeros((r0.size, 0))
         if self._progress:
             self._progress(f'{self.engine.n_trajectories} simulated runs')
+        if not held:
+            # The last two points: a Jacobian asked for again (the trust region's first and
+            # last, the analysis at the solution) costs no simulation.
+            if len(self._sens) > 1:
+                self._sens.pop(next(iter(self._sens)))
+            self._sens[key] = (Jp, Jn)
         return Jp, Jn
 
     def jacobian(self, z: np.ndarray) -> np.ndarray:
@@ -466,5 +476,5 @@ class Problem:
         Jp, Jn = self.sensitivities(z)
         if Jn.shape[1]:
             Q, _ = np.linalg.qr(Jn)
-            Jp -= Q @ (Q.T @ Jp)
+            Jp = Jp - Q @ (Q.T @ Jp)
         return np.vstack([Jp, self.prior_rows(z)[1]])

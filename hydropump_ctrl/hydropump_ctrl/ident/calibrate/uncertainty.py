@@ -6,16 +6,20 @@ offsets) projected out, gives
 
 - the **covariance** of the estimates: the Newey-West (HAC) sandwich of
   :func:`..diagnostics.covariance` (residuals correlated in time, e.g. by a model that does
-  not quite fit, widen it honestly), with a prior's information added where one was given;
+  not quite fit, widen it honestly), never below the white-noise covariance, with a prior's
+  information added where one was given;
 - per parameter, its **standard error**, a **95 % interval** (in log coordinates, so
   asymmetric in the parameter) and whether it is **well determined**: a relative standard
   error below :data:`DETERMINED_REL_STD` (within 2 % at three standard errors). A poorly
   determined parameter is still estimated; it is flagged, with the direction of parameter
   space that is weak and the combination the data do determine (``beta / V_l``);
-- directions the information matrix is **singular** in to working precision (an eigenvalue
-  below :data:`SINGULAR` of the largest, after scaling each parameter to unit sensitivity:
-  the sensitivities themselves are only good to about 1e-4). Only these are held at the
-  start, and the result says that they were and at what.
+- directions the information matrix is **singular** in to working precision: an eigenvalue
+  below :data:`SINGULAR` of the largest, after scaling each parameter to unit sensitivity.
+  The sensitivities come from copies of the plant that share the nominal run's iteration
+  matrix and are good to about 1e-3 (0.1 % on the flows and pressures), so a direction
+  informed less than that, relative to the best-informed one, is numerical noise, not
+  data. Only these are held at the start, and the result says that they were and at what;
+  a parameter in one has no standard error.
 
 :mod:`..design` says which of the standard experiments would determine a weak direction.
 Nothing here imports ROS.
@@ -35,8 +39,8 @@ from ..diagnostics import covariance
 # this (so that it is within 2 % at three standard errors).
 DETERMINED_REL_STD = 0.02 / 3.0
 # An information eigenvalue below this fraction of the largest (parameters scaled to unit
-# sensitivity) is zero to working precision.
-SINGULAR = 1e-10
+# sensitivity) is zero to working precision: the square of the sensitivities' accuracy.
+SINGULAR = 1e-6
 Z95 = 1.959963984540054   # the two-sided 95 % quantile of the normal distribution
 
 
@@ -130,7 +134,11 @@ def analyse(Jr: np.ndarray, r: np.ndarray, names: Sequence[str], groups: Sequenc
         basis = Qf[:, held.shape[1]:n]
     else:
         basis = np.eye(n)
-    _, cov_data, _ = covariance(Jr @ basis, r, groups)
+    cov_white, cov_data, _ = covariance(Jr @ basis, r, groups)
+    # Never less uncertainty than white residuals would give: the lag window of the HAC
+    # estimate is itself estimated, and a short record can make it optimistic.
+    lam, V = np.linalg.eigh(cov_white - cov_data)
+    cov_data = cov_data + (V * np.maximum(lam, 0.0)) @ V.T
     # The sandwich with a prior: B (S_data + I_prior) B, B = (I_data + I_prior)^-1, in the
     # estimable subspace. It is the posterior covariance when the residuals are white.
     Id, Ip = basis.T @ info_data @ basis, basis.T @ info_prior @ basis
