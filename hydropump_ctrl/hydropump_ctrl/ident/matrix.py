@@ -77,7 +77,7 @@ def held_levels(u: np.ndarray, dt: float) -> np.ndarray:
     """A measured staircase as held levels: the steps that stand out of the noise (ten noise
     standard deviations), each level the median between them (a clean command comes back
     as it is)."""
-    from .calibrate import noise_level
+    from .calibrate.data import noise_level
     from .signals import find_steps
     idx, size = find_steps(u, dt)
     sigma = noise_level(u)
@@ -186,7 +186,7 @@ def fit_element(kind: str, records, dt: float, *, td_max: float = 0.25,
 def fit_matrix(recordings, *, params=None) -> dict[str, Element]:
     """Every element the recordings can inform (current and load-pressure steps): pooled over
     recordings by fitting each element on the concatenated steps of all of them."""
-    from .calibrate import experiment_from
+    from .calibrate.data import experiment_from
     from .signals import load_default_params
     params = params or load_default_params()
     out: dict[str, Element] = {}
