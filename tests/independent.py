@@ -11,6 +11,9 @@ stepper, its input tables or its sensor models is used. On top of the plant:
 - effects the calibrated model leaves fixed, set in the truth's parameters: solenoid lag
   ``input.tau_s``, Coulomb friction, actuator leakage.
 
+A commanded current is logged as held from its sample; a measured pressure is sampled, so a
+load-pressure step at ``t_k`` shows from the sample after.
+
 The inputs are held from sample instants (a digital driver's commands, steps on the grid), and
 the bags are written as the recorder writes them (``hydropump_ctrl.recorder.bag``), pressures
 absolute. Test data only.
@@ -98,7 +101,8 @@ class Run:
         for i, t in enumerate(times):
             x, u = self.state(float(t))
             if out_name is None:
-                vals[i] = u[1]
+                # A sampler sees a change of the load pressure at the sample after it.
+                vals[i] = self.state(float(t) - 1e-9)[1][1]
             else:
                 vals[i] = outputs(max(float(t), 0.0), x, u, self.params, p=p)[out_name]
         return vals

@@ -438,14 +438,6 @@ class Runner:
         y = self.sim.outputs()
         self._y = y
         true = true_signals(y, self.sim.u)
-        # The load pressure, an input like the current, is the one held from this instant
-        # on (the scenario's or a live change's, applied before the next increment): every
-        # input of a bag then holds from its stamp.
-        if 'load_pressure' in self.scenario:
-            true['load_pressure'] = float(self.scenario['load_pressure'](self.sim.t))
-        else:
-            true['load_pressure'] = float(self._pending.get('inputs', {}).get(
-                'load_pressure', true['load_pressure']))
         del true['solenoid_current']  # published before the increment, see _applied_current
         signals = {k: self._sense(k, v) for k, v in true.items()}
         sink.measurement(Frame(self.sim.t, signals, velocities(y), efforts(self.params, y)))

@@ -2,11 +2,13 @@
 
 A :class:`Experiment` is one recording cut to what the fine model needs:
 
-- **inputs**, held from each sample on (the topic contract: the simulator publishes at
-  ``t_k`` the current it holds from ``t_k``, and a bench's acquisition samples the current it
-  applies): the commanded current where it was recorded, else the measured one (without its
-  dither lines when the model has its own dither), and the load pressure where it was
-  recorded. A dropped sample of an input is held over (counted); a longer gap is refused;
+- **inputs**, held per sample: the commanded current where it was recorded, else the
+  measured one (without its dither lines when the model has its own dither), held from its
+  stamp (the topic contract: the simulator publishes at ``t_k`` the current it holds from
+  ``t_k``, as a command log does); and the load pressure where it was recorded, a
+  measurement like the others, which at ``t_k`` is the one of the step that ended there
+  (held from ``t_k-1``). A dropped sample of an input is held over (counted); a longer gap
+  is refused;
 - **outputs**: each measured signal compared (by default the ones a bench measures, not the
   simulator's exact spool and plate positions), gauge, NaN where a sample is missing
   (dropped and counted), each with its noise level (:func:`noise_level`);
@@ -218,6 +220,10 @@ def experiment_from(rec, base: Params, signals: Sequence[str] | None = None) -> 
     if LOAD_PRESSURE_SIGNAL in rec and np.isfinite(rec[LOAD_PRESSURE_SIGNAL]).any():
         load = _held_over(name, LOAD_PRESSURE_SIGNAL,
                           np.array(rec[LOAD_PRESSURE_SIGNAL], float), notes) - p_atm
+        # A measured pressure at t_k is the one of the step that ended there (the
+        # simulator's measurements; a bench's sampler sees a change between two samples at
+        # the later one): as an input it holds from the sample before.
+        load = np.append(load[1:], load[-1])
         levels = staircase_of(load)
         if levels is not None:
             n_steps = int(np.count_nonzero(np.diff(levels)))
