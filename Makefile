@@ -36,8 +36,10 @@ lint: $(STAMP)
 test: lint
 	$(BIN)/python -m pytest; rc=$$?; [ $$rc -eq 5 ] && rc=0; exit $$rc
 
+# Every benchmark, then the README's benchmark table from bench/results.json.
 bench: $(STAMP)
 	$(BIN)/python bench/run_all.py
+	$(BIN)/python docs/generate_tables.py
 
 # The seam tests at full length: ten Ctrl-C / SIGTERM loops per node, twenty lock-step runs
 # with a frozen recorder and twenty with both cores loaded (about ten minutes).

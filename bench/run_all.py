@@ -1,16 +1,29 @@
-"""Run every ``bench/bench_*.py`` in turn and print one table of figures and ratios."""
+"""Run every ``bench/bench_*.py`` in turn, print one table of figures and ratios, and write
+them to ``bench/results.json``, from which ``docs/generate_tables.py`` writes the README's
+benchmark table (so no figure there is one no command produced).
 
+    .venv/bin/python bench/run_all.py [bench_calibrate ...]   # all, or the ones named
+"""
+
+from datetime import datetime, timezone
 import json
+import os
 from pathlib import Path
+import platform
 import subprocess
 import sys
 
 HERE = Path(__file__).resolve().parent
+RESULTS = HERE / 'results.json'
 
 
-def main() -> int:
+def main(argv=None) -> int:
+    only = set(sys.argv[1:] if argv is None else argv)
     rows, failed = [], []
+    old = json.loads(RESULTS.read_text()) if RESULTS.exists() else {'benchmarks': {}}
     for script in sorted(HERE.glob('bench_*.py')):
+        if only and script.stem not in only:
+            continue
         print(f'== {script.name}', flush=True)
         proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True)
         found = False
@@ -29,6 +42,16 @@ def main() -> int:
         flag = '' if r['ok'] is None else (' ok' if r['ok'] else ' MISSED')
         print(f"{r['bench'][6:]:18s} {r['name']:55s} {r['value']:>12.4g} {r['unit']:10s} "
               f"{r['goal']}{flag}")
+    # A benchmark run alone replaces its own rows; the others keep theirs (and their date).
+    when = datetime.now(timezone.utc).strftime('%Y-%m-%d %H:%M UTC')
+    machine = f'{os.cpu_count()} cores, {platform.system()} {platform.machine()}, Python ' \
+              f'{platform.python_version()}'
+    for bench in sorted({r['bench'] for r in rows}):
+        old['benchmarks'][bench] = {'run': when, 'machine': machine,
+                                    'rows': [{k: v for k, v in r.items() if k != 'bench'}
+                                             for r in rows if r['bench'] == bench]}
+    RESULTS.write_text(json.dumps(old, indent=1) + '\n')
+    print(f'wrote {RESULTS.relative_to(HERE.parent)}; README: docs/generate_tables.py')
     if failed:
         print(f'failed: {", ".join(failed)}', file=sys.stderr)
     return 1 if failed else 0

@@ -9,8 +9,8 @@ parameter from that experiment alone. Run: ``.venv/bin/python docs/experiment_de
 
 from pathlib import Path
 
-from hydropump_ctrl.ident.design import experiment_table
 from hydropump_ctrl.ident.calibrate import DETERMINED_REL_STD
+from hydropump_ctrl.ident.design import experiment_table
 from hydropump_sim.params import load_params
 
 ROOT = Path(__file__).resolve().parents[1]

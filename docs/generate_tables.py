@@ -1,16 +1,18 @@
-"""Write the parameter tables of README.md and docs/parameters.md from the schemas.
+"""Write the parameter tables of README.md and docs/parameters.md from the schemas, and the
+README's benchmark table from ``bench/results.json`` (what ``make bench`` measured).
 
     .venv/bin/python docs/generate_tables.py          # rewrite the tables in place
     .venv/bin/python docs/generate_tables.py --check  # exit 1 if a table is out of date
 
-Each table sits between ``<!-- BEGIN params:NAME -->`` and ``<!-- END params:NAME -->``; a
-test runs the check, so the tables cannot drift from the schemas (the one place the
-defaults live).
+Each table sits between ``<!-- BEGIN params:NAME -->`` and ``<!-- END params:NAME -->``
+(``<!-- BEGIN bench -->`` for the benchmarks); a test runs the check, so the tables cannot
+drift from the schemas (the one place the defaults live) or from the measured figures.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 import re
 import sys
@@ -36,12 +38,39 @@ def table(name: str) -> str:
     return markdown_table(specs_of(TABLES[name]), f'{name} parameter')
 
 
+BENCH_RESULTS = ROOT / 'bench' / 'results.json'
+
+
+def _value(v: float) -> str:
+    return f'{v:.3g}' if isinstance(v, (int, float)) else str(v)
+
+
+def bench_table() -> str:
+    """The README's benchmark table: every row ``bench/results.json`` holds, by benchmark,
+    with its goal, whether it was met, and the run it comes from."""
+    data = json.loads(BENCH_RESULTS.read_text()) if BENCH_RESULTS.exists() else {}
+    out = ['| benchmark | figure | value | goal | note |', '| --- | --- | --- | --- | --- |']
+    runs = []
+    for bench, b in sorted(data.get('benchmarks', {}).items()):
+        runs.append(f'{bench[6:]}: {b["run"]}')
+        for r in b['rows']:
+            ok = '' if r.get('ok') is None else (' (met)' if r['ok'] else ' (**missed**)')
+            out.append(f'| {bench[6:]} | {r["name"]} | {_value(r["value"])} {r["unit"]} | '
+                       f'{r.get("goal") or ""}{ok} | {r.get("note") or ""} |')
+    machine = {b['machine'] for b in data.get('benchmarks', {}).values()}
+    out += ['', f'Measured by `make bench` ({", ".join(sorted(machine))}); runs: '
+            + '; '.join(runs) + '.']
+    return '\n'.join(out)
+
+
 def render(text: str) -> str:
-    """``text`` with every marked table rewritten from its schema."""
+    """``text`` with every marked table rewritten from its schema or the benchmarks."""
     def sub(m):
         return f'{m.group(1)}\n{table(m.group(2))}\n{m.group(3)}'
-    return re.sub(r'(<!-- BEGIN params:(\w+) -->)\n(?:.*?\n)?(<!-- END params:\2 -->)', sub,
+    text = re.sub(r'(<!-- BEGIN params:(\w+) -->)\n(?:.*?\n)?(<!-- END params:\2 -->)', sub,
                   text, flags=re.S)
+    return re.sub(r'(<!-- BEGIN bench -->)\n(?:.*?\n)?(<!-- END bench -->)',
+                  lambda m: f'{m.group(1)}\n{bench_table()}\n{m.group(2)}', text, flags=re.S)
 
 
 def main(argv=None) -> int:

@@ -23,20 +23,27 @@ def demo(tmp_path_factory):
 
 
 def test_identification_recovers_the_plant(demo):
-    """Bags from the real simulator with the bench profile: the fit finds the configured
-    55 ms delay (beyond the plant's own apparent delay under dither) within 1 ms, and the
-    plant's time constant within 2 ms (the bench row of docs/identification.md)."""
+    """Bags from the real simulator with the bench profile, judged against closed forms of
+    the plant and the configured sensor: G0 of eq. 11 (100 % per unit current), eq. 14's time
+    constant with K_c kept (docs/reference.md I8; the bench dither shortens it by about a
+    millisecond, three sets leave a few of noise), and the 55 ms delay of config/bench.yaml
+    plus the fine model's own apparent dead time (below a millisecond)."""
+    import math
+
+    from hydropump_sim.params import load_params
+    from hydropump_sim.sensors import load_profile
+
+    from ..conftest import ROOT
     _, _, s = demo
-    ident, plant = s['identification'], s['plant']
+    ident = s['identification']
+    p = load_params(ROOT / 'config' / 'pump.yaml')
+    ac, sp = p.actuator, p.spool
+    tau_eq14 = ac.S_a * (1 + sp.K_c / sp.K_a) / (ac.mu_a * math.sqrt(ac.P_a_bar - p.fluid.P_T))
+    delay = load_profile(ROOT / 'config' / 'bench.yaml').spec('line_flow').delay
     assert ident['sets'] == 3
-    assert abs(ident['td'] - plant['td_plant'] - plant['td_configured']) <= 1e-3
-    assert abs(ident['tau'] - plant['tau']) <= 2e-3
-    assert abs(ident['G0'] - plant['G0']) <= 0.7
-    # and the plant truth is what the model says: G0 100 of eq. 11, tau about 100 ms
-    # without dither (docs/reference.md), shortened by the bench dither.
-    assert abs(plant['G0'] - 100.0) <= 1.0
-    assert 0.0995 <= plant['tau_nominal'] <= 0.1015
-    assert 0.08 <= plant['tau'] <= plant['tau_nominal']
+    assert abs(ident['G0'] - 100.0) <= 1.0
+    assert abs(ident['tau'] - tau_eq14) <= 5e-3, (ident['tau'], tau_eq14)
+    assert 0.0 <= ident['td'] - delay <= 2e-3, (ident['td'], delay)
 
 
 def test_closed_loop_through_the_nodes(demo):
