@@ -37,9 +37,9 @@ from hydropump_ctrl.ident.calibrate import calibrate, params_with  # noqa: E402
 from hydropump_ctrl.ident.fit import blas_single_threaded  # noqa: E402
 from hydropump_sim.params import load_params  # noqa: E402
 from hydropump_sim.simulate import simulate  # noqa: E402
+from tests import independent as ind  # noqa: E402
 
 from common import emit, row  # noqa: E402
-from tests import independent as ind  # noqa: E402
 
 FREE = ('actuator.mu_a', 'actuator.P_a_bar', 'line.V_l', 'line.mu_u')
 FACTORS = (1.3, 0.8, 1.45, 0.88)

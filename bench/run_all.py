@@ -5,7 +5,7 @@ benchmark table (so no figure there is one no command produced).
     .venv/bin/python bench/run_all.py [bench_calibrate ...]   # all, or the ones named
 """
 
-from datetime import datetime, timezone
+from datetime import datetime, UTC
 import json
 import os
 from pathlib import Path
@@ -43,7 +43,7 @@ def main(argv=None) -> int:
         print(f"{r['bench'][6:]:18s} {r['name']:55s} {r['value']:>12.4g} {r['unit']:10s} "
               f"{r['goal']}{flag}")
     # A benchmark run alone replaces its own rows; the others keep theirs (and their date).
-    when = datetime.now(timezone.utc).strftime('%Y-%m-%d %H:%M UTC')
+    when = datetime.now(UTC).strftime('%Y-%m-%d %H:%M UTC')
     machine = f'{os.cpu_count()} cores, {platform.system()} {platform.machine()}, Python ' \
               f'{platform.python_version()}'
     for bench in sorted({r['bench'] for r in rows}):
