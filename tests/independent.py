@@ -11,8 +11,8 @@ stepper, its input tables or its sensor models is used. On top of the plant:
 - effects the calibrated model leaves fixed, set in the truth's parameters: solenoid lag
   ``input.tau_s``, Coulomb friction, actuator leakage.
 
-A commanded current is logged as held from its sample; a measured pressure is sampled, so a
-load-pressure step at ``t_k`` shows from the sample after.
+A commanded current is logged as held from its sample; a measured signal is sampled, so an
+input change at ``t_k`` shows in it from the sample after (the inputs just before ``t_k``).
 
 The inputs are held from sample instants (a digital driver's commands, steps on the grid), and
 the bags are written as the recorder writes them (``hydropump_ctrl.recorder.bag``), pressures
@@ -99,10 +99,12 @@ class Run:
         p = pack(self.params)
         vals = np.empty(times.size)
         for i, t in enumerate(times):
+            # A sampler sees an input change at the sample after it: the inputs are those
+            # just before ``t`` (the state is continuous).
             x, u = self.state(float(t))
+            u = self.state(float(t) - 1e-9)[1]
             if out_name is None:
-                # A sampler sees a change of the load pressure at the sample after it.
-                vals[i] = self.state(float(t) - 1e-9)[1][1]
+                vals[i] = u[1]
             else:
                 vals[i] = outputs(max(float(t), 0.0), x, u, self.params, p=p)[out_name]
         return vals

@@ -38,6 +38,10 @@ def register(sub) -> None:
                    'config/bench.yaml; default: ideal sensors)')
     p.add_argument('--out', metavar='DIR', help='folder of the bags (created; needed unless '
                    '--check)')
+    p.add_argument('--rate', type=float, default=RATE, metavar='HZ',
+                   help='measurement rate of the simulator started here [Hz]: 1000 sees the '
+                   "line pole's 3.5 ms, which a calibration of line.V_l needs; 200 records "
+                   'three times faster (default %(default)g)')
     p.add_argument('--attach', action='store_true', help='drive the simulator, controller '
                    'and recorder already running in this ROS domain (and --namespace) '
                    'instead of starting a graph')
@@ -63,12 +67,23 @@ def _plant(args):
     return params
 
 
+# Measurements every 1 ms: the line pole (3.5 ms, eq. 9) shows in several samples of each
+# load step, which line.V_l is calibrated from (docs/experiment_design.md).
+RATE = 1000.0
+
+
 def _check_options(args) -> None:
     if args.attach and (args.params or args.profile):
         raise UsageError('--params and --profile set up the graph that record starts; with '
                          "--attach the running simulator's plant is used (drop them)")
     if not (math.isfinite(args.wait) and args.wait > 0):
         raise UsageError(f'--wait {args.wait:g}: expected a finite number > 0 (s)')
+    if not (math.isfinite(args.rate) and args.rate > 0):
+        raise UsageError(f'--rate {args.rate:g}: expected a finite number > 0 (Hz; the '
+                         "simulator's step must divide its period, e.g. 1000, 500, 200)")
+    if args.attach and args.rate != RATE:
+        raise UsageError("--rate sets up the graph that record starts; with --attach the "
+                         "running simulator's publish_rate is used (drop it)")
     if args.params and not Path(args.params).is_file():
         raise UsageError(f'--params {args.params}: no such file')
     if not args.out and not args.check:

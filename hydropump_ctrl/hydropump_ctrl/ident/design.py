@@ -73,23 +73,23 @@ RATE_RATIO = 2.0
 
 
 def separating_experiments(params, free: Sequence[str], information: np.ndarray,
-                           direction: np.ndarray, sigma: dict, duration: float
-                           ) -> list[tuple[str, float]]:
+                           direction: np.ndarray, sigma: dict, duration: float,
+                           dt: float = 1e-3) -> list[tuple[str, float]]:
     """Which candidate experiments, added to recordings of Fisher ``information`` and
     ``duration`` seconds, determine ``direction`` (relative standard error below
     :data:`DETERMINED_REL_STD`) by information the recordings lack (at least
     :data:`RATE_RATIO` times theirs per second along it), with the standard error it would
-    have."""
+    have; each candidate sampled every ``dt`` as the recordings were."""
     good = []
     w = np.asarray(direction, float)
     w = w / np.linalg.norm(w)
     rate = float(w @ information @ w) / max(duration, 1e-9)
-    for name, inputs in candidate_inputs(params).items():
+    for name, inputs in candidate_inputs(params, dt=dt).items():
         try:
-            cand = experiment_information(params, free, inputs, sigma)
+            cand = experiment_information(params, free, inputs, sigma, dt)
         except HydropumpError:   # a candidate the model cannot run is no candidate
             continue
-        t_c = inputs['current'].size * 1e-3
+        t_c = inputs['current'].size * dt
         var = float(w @ np.linalg.pinv(information + cand) @ w)
         new = float(w @ cand @ w) / t_c >= RATE_RATIO * rate
         if new and var > 0 and math.sqrt(var) < DETERMINED_REL_STD:
@@ -122,14 +122,16 @@ def suggest(cal: Calibration) -> None:
     sigma = {s: float(np.median([e.sigma[s] for e in exps if s in e.sigma]))
              for s in {s for e in exps for s in e.measured}}
     duration = sum(e.duration for e in exps)
+    dt = float(np.median([e.dt for e in exps]))
     for u in dirs:
         sep = separating_experiments(cal.params, cal.free, cal.information,
-                                     np.array(u['direction']), sigma, duration)
+                                     np.array(u['direction']), sigma, duration, dt)
         u['separated_by'] = [name for name, _ in sep]
         u['separated_stderr'] = {name: se for name, se in sep}
         cal.flags.append(f'to determine {", ".join(u["parameters"])}, add: '
                          + (', '.join(f'{n} ({100 * se:.2g} %)' for n, se in sep) if sep
                             else 'none of the standard experiments adds what these recordings '
-                            'lack with these signals (longer recordings of the same kind '
-                            'lower the error as one over the square root of their length; '
-                            'else measure another signal, or give a prior)'))
+                            f'lack with these signals at {1 / dt:.4g} Hz (longer recordings '
+                            'of the same kind lower the error as one over the square root of '
+                            'their length; else sample faster, measure another signal, or '
+                            'give a prior)'))

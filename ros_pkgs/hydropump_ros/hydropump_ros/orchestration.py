@@ -202,16 +202,16 @@ class Graph:
 
     @classmethod
     def start(cls, orch: Orchestrator, log_dir: Path, topics: list[str], *,
-              sensor_profile: str | Path | None = None, params_file: str | Path | None = None
-              ) -> Graph:
+              sensor_profile: str | Path | None = None, params_file: str | Path | None = None,
+              publish_rate: float = PUBLISH_RATE) -> Graph:
         """Start the three nodes (in parallel, in the orchestrator's namespace) and wait
         until each is ready; :attr:`ready_s` has each one's start-up time [s] from the
         process start: the simulator's services answer, the controller is active, the
         recorder has matched a publisher on every topic."""
-        graph = cls(orch, log_dir=log_dir)
+        graph = cls(orch, log_dir=log_dir, publish_rate=publish_rate)
         log_dir.mkdir(parents=True, exist_ok=True)
         sim = {'lock_step': True, 'start_paused': True, 'command_timeout': 60.0,
-               'publish_rate': PUBLISH_RATE, **LONG_WAITS['simulator']}
+               'publish_rate': publish_rate, **LONG_WAITS['simulator']}
         if params_file:
             sim['params_file'] = str(Path(params_file).resolve())
         if sensor_profile:

@@ -58,7 +58,8 @@ def run(plan: Plan, params, args, echo: Callable[[str], None] = print) -> dict[s
             echo(f'[graph] simulator, controller and recorder (ROS domain {did}'
                  + (f', namespace {orch.namespace}' if orch.namespace else '') + ') ...')
             graph = Graph.start(orch, out / LOG_FOLDER, LOOP_TOPICS,
-                                sensor_profile=args.profile, params_file=args.params)
+                                sensor_profile=args.profile, params_file=args.params,
+                                publish_rate=args.rate)
             try:
                 echo(f'[graph] ready in {time.perf_counter() - t0:.1f} s; logs in '
                      f'{out / LOG_FOLDER}')

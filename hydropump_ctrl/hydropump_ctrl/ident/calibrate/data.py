@@ -43,6 +43,10 @@ COMMAND_SIGNAL = 'solenoid_current_cmd'
 NOISE_FLOOR = 1e-3        # the smallest noise level, relative to a signal's span
 MIN_SAMPLES = 50          # samples a recording needs (a few plant time constants at 1 kHz)
 MAX_HELD_GAP = 5          # missing input samples in a row that are held over, not refused
+# The model's output step [s]: a recording sampled more coarsely is simulated this finely, so
+# that a fast transient (the line pole, 3.5 ms) behind a fractional delay is sampled where the
+# sensor sampled it, not interpolated between coarse samples.
+MODEL_DT = 1.0e-3
 
 
 class CalibrationError(FitError):
@@ -82,6 +86,15 @@ class Experiment:
     @property
     def n(self) -> int:
         return self.current.size
+
+    @property
+    def fine(self) -> int:
+        """Model output steps per recorded sample (see :data:`MODEL_DT`)."""
+        return max(1, int(round(self.dt / MODEL_DT)))
+
+    @property
+    def dt_model(self) -> float:
+        return self.dt / self.fine
 
     @property
     def duration(self) -> float:

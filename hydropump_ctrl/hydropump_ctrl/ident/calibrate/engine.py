@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from hydropump_sim.measure import SIGNAL_OUTPUTS
-from hydropump_sim.model import OUTPUTS
+from hydropump_sim.model import outputs, OUTPUTS, pack
 from hydropump_sim.params import Params, params_from_dict
 from hydropump_sim.simulate import simulate_copies
 from hydropump_sim.trim import equilibrium
@@ -76,19 +76,37 @@ def _initial_state(params: Params, exp: Experiment):
 
 def simulate_runs(plist: Sequence[Params], exp: Experiment, rtol: float | None = None
                   ) -> list[dict[str, np.ndarray]]:
-    """The fine model's true signals on the experiment's grid (SI, gauge) for each parameter
-    set of ``plist``, the first one's steps shared (see the module)."""
-    n = exp.n
-    runs = simulate_copies(plist, (n - 1) * exp.dt, exp.current,
-                           load_pressure=exp.load_pressure, dt_out=exp.dt, dt_max=exp.dt,
+    """The fine model's true signals (SI, gauge) for each parameter set of ``plist``, the
+    first one's steps shared (see the module), on the experiment's model grid: ``fine``
+    output steps per recorded sample (the recorded sample ``k`` is row ``k fine``), the
+    inputs held over each recorded sample."""
+    m = exp.fine
+    n = (exp.n - 1) * m + 1
+    load = None if exp.load_pressure is None else np.repeat(exp.load_pressure, m)
+    runs = simulate_copies(plist, (exp.n - 1) * exp.dt, np.repeat(exp.current, m),
+                           load_pressure=load, dt_out=exp.dt_model, dt_max=exp.dt_model,
                            rtol=rtol, t0=exp.t0, x0=[_initial_state(p, exp) for p in plist])
-    return [{s: res.y[:n, _OUT_INDEX[s]] for s in exp.measured} for res in runs]
+    out = []
+    for params, res in zip(plist, runs):
+        y = res.y[:n]
+        # A sample at an input change is the one of the step that ended there (as the
+        # simulator measures and a sampler sees): the load flow, which the load pressure
+        # moves at once (eq. 9), with the inputs before the change.
+        changed = np.flatnonzero(np.any(res.u[1:n] != res.u[:n - 1], axis=1)) + 1
+        if changed.size:
+            y = y.copy()
+            p = pack(params)
+            for k in changed:
+                o = outputs(float(res.t[k]), res.x[k], res.u[k - 1], params, p=p)
+                y[k] = [o[name] for name in OUTPUTS]
+        out.append({s: y[:, _OUT_INDEX[s]] for s in exp.measured})
+    return out
 
 
 def simulate_experiment(params: Params, exp: Experiment, rtol: float | None = None
                         ) -> dict[str, np.ndarray]:
-    """The fine model's true signals on the experiment's grid (SI, gauge)."""
-    return simulate_runs([params], exp, rtol)[0]
+    """The fine model's true signals on the experiment's recorded grid (SI, gauge)."""
+    return {s: y[::exp.fine] for s, y in simulate_runs([params], exp, rtol)[0].items()}
 
 
 # Work shared with forked workers (set before the pool starts).

@@ -170,31 +170,34 @@ def _cubic(y: np.ndarray, d: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
     return val, rate
 
 
-def delayed(y: np.ndarray, d: float, dt: float) -> np.ndarray:
-    """``y(t - d)`` (see :func:`_cubic`)."""
-    return y if d == 0.0 else _cubic(y, d, dt)[0]
+def delayed(y: np.ndarray, d: float, dt: float, m: int = 1) -> np.ndarray:
+    """``y(t - d)`` (see :func:`_cubic`) on the grid ``k dt``, then every ``m``-th sample
+    (a model grid ``m`` times finer than the recording's)."""
+    return (y if d == 0.0 else _cubic(y, d, dt)[0])[::m]
 
 
-def _shifted(y: np.ndarray, m: int) -> tuple[np.ndarray, ...]:
+def _shifted(y: np.ndarray, m: int, step: int = 1) -> tuple[np.ndarray, ...]:
     """The cubic-convolution coefficients of ``y`` delayed by ``m - 1 + g`` samples, as
     ``(a, b, c, p)`` with the value ``((a (1-g) + b)(1-g) + c)(1-g) + p``: the four
-    neighbours ``y[k-m-1 .. k-m+2]``, clamped at the ends (the run starts settled)."""
+    neighbours ``y[k-m-1 .. k-m+2]``, clamped at the ends (the run starts settled); at every
+    ``step``-th ``k`` (a model grid finer than the recording's)."""
     n = y.size
-    k = np.arange(n) - m
+    k = np.arange(0, n, step) - m
     p0, p1, p2, p3 = (y[np.clip(k + j, 0, n - 1)] for j in (-1, 0, 1, 2))
     return (-0.5 * p0 + 1.5 * p1 - 1.5 * p2 + 0.5 * p3, p0 - 2.5 * p1 + 2.0 * p2 - 0.5 * p3,
             -0.5 * p0 + 0.5 * p2, p1)
 
 
 def _best_shift(parts, oks, lo_k: int, hi_k: int, offset: bool) -> int:
-    """The whole-sample shift in ``[lo_k, hi_k]`` with the least weighted sum of squares."""
+    """The whole-sample shift (of the model grid) in ``[lo_k, hi_k]`` with the least
+    weighted sum of squares."""
     ks = np.arange(lo_k, hi_k + 1)
     sse = np.zeros(ks.size)
     tot = np.zeros(ks.size)
     w_sum = 0.0
-    for (y, meas, _, sg), ok in zip(parts, oks):
+    for (y, meas, _, sg, step), ok in zip(parts, oks):
         idx = np.flatnonzero(ok)
-        shifted = y[np.clip(idx[None, :] - ks[:, None], 0, y.size - 1)]
+        shifted = y[np.clip(step * idx[None, :] - ks[:, None], 0, y.size - 1)]
         r = shifted - meas[idx][None, :]
         sse += (r * r).sum(axis=1) / sg ** 2
         tot += r.sum(axis=1) / sg ** 2
@@ -206,15 +209,16 @@ def _best_shift(parts, oks, lo_k: int, hi_k: int, offset: bool) -> int:
 
 def best_delay(parts, d_min: float, d_max: float, offset: bool) -> tuple[float, float]:
     """The delay in ``[d_min, d_max]`` (and the offset, with ``offset``) that minimise the
-    weighted sum of squares of ``delayed(y, d) + o - m`` over ``parts`` (``(y, m, dt,
-    sigma)``, one sample period), exactly: for a whole-sample shift the delayed model is a
+    weighted sum of squares of ``delayed(y, d, dt, step) + o - m`` over ``parts`` (``(y, m,
+    dt, sigma, step)``: the model ``y`` on a grid ``dt``, ``step`` times finer than the
+    measured ``m``; one ``dt`` for all), exactly: for a whole-sample shift the delayed model is a
     cubic in the fractional part (:func:`_cubic`), so the sum of squares is a polynomial of
     degree six in it, built from seven sums and minimised at its stationary points."""
     dt = parts[0][2]
     if any(abs(p[2] - dt) > 1e-9 * dt for p in parts):
         raise ValueError('a delay shared by recordings needs one sample period')
-    oks = [np.isfinite(m) for _, m, _, _ in parts]
-    w_sum = sum(int(ok.sum()) / sg ** 2 for ok, (_, _, _, sg) in zip(oks, parts))
+    oks = [np.isfinite(m) for _, m, _, _, _ in parts]
+    w_sum = sum(int(ok.sum()) / sg ** 2 for ok, (_, _, _, sg, _) in zip(oks, parts))
     lo_k, hi_k = int(math.floor(d_min / dt)), int(math.ceil(d_max / dt))
     shifts = range(lo_k, max(hi_k, lo_k + 1))
     if len(shifts) > 6:
@@ -227,8 +231,8 @@ def best_delay(parts, d_min: float, d_max: float, offset: bool) -> tuple[float, 
         # d = (m + f) dt; the sample k - m - f lies between k-m-1 and k-m at 1 - f.
         P = np.zeros(7)          # sum of squares in powers of f, f^0 .. f^6
         S = np.zeros(4)          # weighted sum of the residual (for the offset)
-        for (y, meas, _, sg), ok in zip(parts, oks):
-            a, b, c, p = (v[ok] for v in _shifted(y, m + 1))
+        for (y, meas, _, sg, step), ok in zip(parts, oks):
+            a, b, c, p = (v[ok] for v in _shifted(y, m + 1, step))
             # In u = 1 - f: r = a u^3 + b u^2 + c u + (p - meas); rewrite in f.
             e0 = p - meas[ok]
             c3, c2, c1, c0 = -a, 3 * a + b, -(3 * a + 2 * b + c), a + b + c + e0
@@ -348,8 +352,8 @@ class Problem:
     def _settle(self, key: bytes, sims, search: bool):
         nuis = {}
         for k, blocks in self.keys.items():
-            parts = [(sims[i][s], self.exps[i].measured[s], self.exps[i].dt,
-                      self.exps[i].sigma[s]) for i, s in blocks]
+            parts = [(sims[i][s], self.exps[i].measured[s], self.exps[i].dt_model,
+                      self.exps[i].sigma[s], self.exps[i].fine) for i, s in blocks]
             nuis[k] = self._inner(parts, self.nuis[k][0], k in self.with_offset, search)
         self.nuis = nuis
         r = np.concatenate(list(self._residual_blocks(self._apply(sims, nuis))))
@@ -361,7 +365,7 @@ class Problem:
     def _apply(self, sims, nuis) -> list[dict[str, np.ndarray]]:
         out = []
         for i, (e, sim) in enumerate(zip(self.exps, sims)):
-            out.append({s: delayed(sim[s], nuis[self.key(i, s)][0], e.dt)
+            out.append({s: delayed(sim[s], nuis[self.key(i, s)][0], e.dt_model, e.fine)
                         + nuis[self.key(i, s)][1] for s in e.measured})
         return out
 
@@ -453,7 +457,7 @@ class Problem:
                 e = self.exps[i]
                 ok = np.isfinite(e.measured[s])
                 g = rows[(i, s)]
-                cd[g] = -_cubic(nominal[i][s], d, e.dt)[1] / e.sigma[s] * ok
+                cd[g] = -_cubic(nominal[i][s], d, e.dt_model)[1][::e.fine] / e.sigma[s] * ok
                 co[g] = ok / e.sigma[s]
             if self.fit_delays and DELAY_MIN < d < DELAY_MAX:
                 cols.append(cd)
