@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from hydropump_sim.measure import SIGNAL_OUTPUTS
-from hydropump_sim.model import outputs, OUTPUTS, pack
+from hydropump_sim.model import OUTPUTS, outputs, pack
 from hydropump_sim.params import Params, params_from_dict
 from hydropump_sim.simulate import simulate_copies
 from hydropump_sim.trim import equilibrium
