@@ -367,8 +367,14 @@ def _clean(t_ns: np.ndarray, cols: list[np.ndarray], topic: str, where: str, not
                            f'(first at t = {(t_ns[k] - t_ns[0]) * 1e-9:.6g} s)')
     keep = np.ones(t_ns.size, bool)
     keep[:-1] = t_ns[1:] != t_ns[:-1]
-    if not keep.all():
-        notes.append(f'{topic}: {int((~keep).sum())} repeated time stamps dropped')
+    repeated = int((~keep).sum())
+    if repeated > max(10, 0.05 * t_ns.size):
+        raise BagError(f'{where}: {repeated} of the {t_ns.size} messages of {topic} repeat '
+                       'the time of another: the bag holds more than one run (a restarted '
+                       'simulator, time going back); record one run per bag, or cut it '
+                       'where time goes back')
+    if repeated:
+        notes.append(f'{topic}: {repeated} repeated time stamps dropped')
     return t_ns[keep], [c[keep] for c in cols]
 
 

@@ -175,5 +175,5 @@ def interval(z: float, se: float, log: bool, scale: float) -> tuple[float, float
     ``se`` (in that coordinate)."""
     lo, hi = z - Z95 * se, z + Z95 * se
     if log:
-        return math.exp(lo), math.exp(hi)
+        return math.exp(max(lo, -700.0)), math.exp(min(hi, 700.0))
     return lo * scale, hi * scale

@@ -1,0 +1,80 @@
+"""``hydropump calibrate`` and ``validate`` as a user runs them: one ``error:`` line and exit
+code 2 for every bad input, nothing written over what the user gave, and ``--help`` for
+both. The bags are written as the recorder writes them."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from hydropump_ctrl.cli import main
+from hydropump_ctrl.recorder.bag import write_bag
+
+from ..conftest import ROOT
+
+F64, PRESSURE = 'std_msgs/msg/Float64', 'sensor_msgs/msg/FluidPressure'
+
+
+@pytest.fixture(scope='module')
+def bag(tmp_path_factory):
+    """A small bag: a current step and a flat flow and line pressure."""
+    path = tmp_path_factory.mktemp('bags') / 'run'
+    t = 1.0 + np.arange(1500) * 1e-3
+    write_bag(path, {'/solenoid_current': (F64, t, np.where(t < 1.5, 0.46, 0.54)),
+                     '/line_flow': (F64, t, np.full(t.size, 5.6e-4)),
+                     '/line_pressure': (PRESSURE, t, np.full(t.size, 1.5e7))})
+    return path
+
+
+def _run(capsys, *args):
+    code = main(list(args))
+    err = capsys.readouterr().err
+    return code, err
+
+
+@pytest.mark.parametrize('make, text', [
+    (lambda tmp, bag: ['--out', str(bag / 'metadata.yaml')], 'lies inside the input'),
+    (lambda tmp, bag: ['--params', str(tmp / 'start.yaml'), '--out', str(tmp / 'start.yaml')],
+     'it is one of the inputs'),
+    (lambda tmp, bag: ['--report', str(bag)], 'it is one of the inputs'),
+    (lambda tmp, bag: ['--prior', 'line.V_l=5e-4'], '--prior line.V_l=5e-4: expected'),
+    (lambda tmp, bag: ['--prior', 'line.V_l=5e-4+-10%'], 'not a free parameter'),
+])
+def test_bad_calibrate_options_get_one_line_and_nothing_is_written(bag, tmp_path, capsys,
+                                                                  make, text):
+    start = tmp_path / 'start.yaml'
+    start.write_text((ROOT / 'config' / 'pump.yaml').read_text())
+    before = {p: p.read_bytes() for p in [start, *bag.iterdir()]}
+    code, err = _run(capsys, 'calibrate', str(bag), '--free', 'line.mu_u',
+                     '--report', str(tmp_path / 'rep'), *make(tmp_path, bag))
+    assert code == 2 and err.startswith('error: ') and text in err, err
+    assert len(err.strip().splitlines()) == 1
+    assert {p: p.read_bytes() for p in before} == before   # nothing over an input
+    assert set(bag.iterdir()) == {p for p in before if p.parent == bag}
+
+
+def test_empty_truncated_and_two_run_bags_get_one_line(bag, tmp_path, capsys):
+    empty = tmp_path / 'empty'
+    empty.mkdir()
+    cut = tmp_path / 'cut'
+    cut.mkdir()
+    data = next(bag.glob('*.mcap')).read_bytes()
+    (cut / 'cut_0.mcap').write_bytes(data[:200])
+    two = tmp_path / 'two'
+    t = 1.0 + np.arange(1500) * 1e-3
+    tt = np.concatenate([t, t])              # a restarted simulator: time goes back
+    write_bag(two, {'/solenoid_current': (F64, tt, np.where(tt < 1.5, 0.46, 0.54)),
+                    '/line_flow': (F64, tt, np.full(tt.size, 5.6e-4))}, storage='sqlite3')
+    for path, text in ((empty, ''), (cut, ''), (two, 'time goes back')):
+        code, err = _run(capsys, 'calibrate', str(path), '--free', 'line.mu_u', '--report',
+                         str(tmp_path / 'rep'))
+        assert code == 2 and err.startswith('error: '), (path, err)
+        assert len(err.strip().splitlines()) == 1 and text in err, (path, err)
+
+
+def test_help_of_both_commands_works():
+    for cmd in ('calibrate', 'validate'):
+        proc = subprocess.run([sys.executable, '-m', 'hydropump_ctrl.cli', cmd, '--help'],
+                              capture_output=True, text=True, timeout=60)
+        assert proc.returncode == 0 and 'usage: hydropump' in proc.stdout, proc.stderr
