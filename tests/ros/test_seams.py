@@ -133,10 +133,18 @@ def test_a_plain_graph_gives_one_clock_in_the_bag(tmp_path, ros_domain, test_nod
              for n in ('recorder', 'simulator', 'controller')]
     try:
         _wait_until(lambda: all(p.ready() for p in procs), 120, 'every node to be ready')
+        from diagnostic_msgs.msg import DiagnosticArray
         from sensor_msgs.msg import JointState
-        states = []
+        states, bases = [], []
         test_node.create_subscription(JointState, 'controller/state', states.append, 10)
+        test_node.create_subscription(
+            DiagnosticArray, '/diagnostics',
+            lambda m: bases.extend(kv.value for s in m.status if s.name == 'recorder'
+                                   for kv in s.values if kv.key == 'time_base'), 10)
         spin_until(test_node, lambda: states, 60, 'the controller to control')
+        # The recorder has seen the simulator's /clock (discovery on a loaded machine can
+        # miss the first announcements and take a few seconds more).
+        spin_until(test_node, lambda: 'sim' in bases, 30, 'the recorder to take /clock')
         time.sleep(2.0)  # two seconds of a paced run
         for p in procs:
             p.proc.send_signal(signal.SIGINT)
