@@ -9,10 +9,8 @@ from __future__ import annotations
 import numpy as np
 
 from . import _core as c
+from .components.pump import BRANCHES, model_code, MODELS, pack  # noqa: F401
 from .params import Params
-
-MODELS = {'fine': c.FINE, 'simplified': c.SIMPLIFIED, 'simplified_Kc': c.SIMPLIFIED_KC}
-BRANCHES = {None: 0.0, 'natural': 0.0, 'pos': 1.0, 'neg': -1.0}
 
 FINE_STATES = ('x_c', 'v_c', 'x_a', 'v_a', 'P_a', 'P_l')
 FINE_UNITS = ('m', 'm/s', 'm', 'm/s', 'Pa', 'Pa')
@@ -23,88 +21,6 @@ OUTPUT_UNITS = ('A', 'm', 'm/s', 'm', 'm/s', 'Pa', 'Pa', 'm^3/s', 'm^3/s', 'm^3/
                 'm^3/s')
 INPUTS = ('i_s', 'P_u', 'xi_u', 'f_p')
 INPUT_UNITS = ('A', 'Pa', '-', 'Hz')
-
-
-def model_code(model: str) -> int:
-    """Translate a model name into its kernel code, with a clear error."""
-    try:
-        return MODELS[model]
-    except KeyError:
-        raise ValueError(f'unknown model {model!r}: choose one of {", ".join(MODELS)}') \
-            from None
-
-
-def pack(params: Params, model: str = 'fine', branch: str | None = None) -> np.ndarray:
-    """Packed parameter vector for the kernels (SI).
-
-    Parameters
-    ----------
-    params : Params
-        Validated plant parameters.
-    model : {'fine', 'simplified', 'simplified_Kc'}
-        Which equations to evaluate.
-    branch : {None, 'pos', 'neg'}
-        Force the pilot-valve law of eq. 4 to one side of ``x_c = 0`` (one-sided
-        linearisation, docs/reference.md I2); ``None`` follows the sign of ``x_c``.
-    """
-    f, pu, sp, ac, pl, ln, rl, inp = (params.fluid, params.pump, params.spool, params.actuator,
-                                      params.plate, params.line, params.relief, params.input)
-    p = np.zeros(c.N_P)
-    p[c.P_BETA] = f.beta
-    p[c.P_ALPHA] = f.alpha_air
-    p[c.P_PATM] = f.p_atm
-    p[c.P_PT] = f.P_T
-    p[c.P_FLOOR] = float(f.pressure_floor)
-    p[c.P_DPFLOOR] = f.dp_floor
-    p[c.P_VP] = pu.V_p
-    p[c.P_STROKE] = params.stroke_scale
-    p[c.P_XASTOP] = params.x_a_stop
-    p[c.P_DISPCLIP] = float(pu.disp_clip)
-    p[c.P_MC] = sp.m_c
-    p[c.P_KC] = sp.K_c
-    p[c.P_KA] = sp.K_a
-    p[c.P_PHI] = sp.phi_s
-    p[c.P_XCMAX] = sp.x_c_max
-    p[c.P_CC] = sp.c_c
-    p[c.P_FCC] = sp.F_coul_c
-    p[c.P_VEPSC] = sp.v_eps_c
-    p[c.P_KSTOPC] = sp.k_stop_c
-    p[c.P_CSTOPC] = sp.c_stop_c
-    p[c.P_SA] = ac.S_a
-    p[c.P_VA0] = ac.V_a0
-    p[c.P_VAMIN] = ac.V_a_min
-    p[c.P_PABAR] = ac.P_a_bar
-    p[c.P_MUA] = ac.mu_a
-    p[c.P_DPCRA] = ac.dp_cr_a
-    p[c.P_GLEAK] = ac.G_leak_a
-    p[c.P_MA] = pl.m_a
-    p[c.P_KB] = pl.K_b
-    p[c.P_SD] = pl.S_d
-    p[c.P_CA] = pl.c_a
-    p[c.P_FCA] = pl.F_coul_a
-    p[c.P_VEPSA] = pl.v_eps_a
-    p[c.P_KSTOPA] = pl.k_stop_a
-    p[c.P_CSTOPA] = pl.c_stop_a
-    p[c.P_VL] = ln.V_l
-    p[c.P_PLBAR] = ln.P_l_bar
-    p[c.P_GAMMA] = ln.gamma_u
-    p[c.P_MUU] = ln.mu_u
-    p[c.P_DPCRU] = ln.dp_cr_u
-    p[c.P_RELIEF] = float(rl.enabled)
-    p[c.P_PCRACK] = rl.p_crack
-    p[c.P_PFULL] = rl.p_full
-    p[c.P_QFULL] = rl.q_full
-    p[c.P_DITHA] = inp.dither_amp
-    p[c.P_DITHF] = inp.dither_freq
-    p[c.P_TAUS] = inp.tau_s if model == 'fine' else 0.0
-    p[c.P_IMIN] = sp.I_min
-    p[c.P_IMAX] = sp.I_max
-    p[c.P_MODEL] = model_code(model)
-    try:
-        p[c.P_BRANCH] = BRANCHES[branch]
-    except KeyError:
-        raise ValueError(f'unknown branch {branch!r}: choose pos or neg') from None
-    return p
 
 
 def state_names(params: Params, model: str = 'fine') -> tuple[str, ...]:

@@ -18,6 +18,7 @@ from typing import Union
 import numpy as np
 
 from . import _core as c
+from . import integrator as ig
 from .errors import HydropumpError, InputError
 from .inputs import held
 from .model import INPUTS, OUTPUT_UNITS, OUTPUTS, pack, state_names
@@ -400,6 +401,7 @@ class Simulator:
         self.dt = dt
         self.config = config
         self._p = pack(params, model)
+        self._structure = c.structure(self._p, len(state_names(params, model)))
         self.stats = np.zeros(2, dtype=np.int64)
         self.u = operating_inputs(params)
         self.t = 0.0
@@ -440,8 +442,11 @@ class Simulator:
         t0 = self.steps * self.dt
         x = self.x.copy()
         cfg = self.config
-        h, status = c.advance(t0, t0 + self.dt, x[None], self.u, self._p[None], self._h,
-                              cfg.rtol, cfg.h_min, cfg.max_steps, self.stats)
+        st = self._structure
+        h, status = ig.advance(c.evaluate_c, t0, t0 + self.dt, x[None], self.u, self._p[None],
+                               self._h, st['scale'], cfg.rtol, cfg.h_min, cfg.max_steps,
+                               self.stats, False, st['timed'], st['dt_time'], st['colors'],
+                               st['pattern'], c.N_Y)
         if status != c.OK:
             raise IntegrationError(f'integration failed at t = {t0:.6g} s (code {status})')
         self.x = x

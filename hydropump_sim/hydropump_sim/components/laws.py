@@ -1,0 +1,101 @@
+"""Hydraulic laws shared by the components: compiled scalar functions, no state.
+
+- :func:`sroot`, :func:`groot`: orifice laws with the laminar regularisation of the pump
+  (docs/reference.md I3): ``Q = mu dp^(1/gamma)`` above ``dp_cr``, linear below;
+- :func:`continuity`: ``dP/dt = beta(P)/V * q`` with entrained air and the cavitation floor
+  (eqs. 3 and 9);
+- :func:`stop_force`: a penalty end stop that pushes and never pulls;
+- :func:`lag`: a first-order lag toward a target, or the target itself when it has no time
+  constant.
+"""
+
+import math
+
+import numba
+
+jit = numba.njit(cache=True, fastmath=False, nogil=True)
+
+
+@jit
+def sroot(dp, dp_cr):
+    """Signed regularised square root: laminar below ``dp_cr``, ``sqrt`` above (I3)."""
+    if dp_cr > 0.0:
+        return dp / (dp * dp + dp_cr * dp_cr) ** 0.25
+    return math.sqrt(dp) if dp > 0.0 else 0.0
+
+
+@jit
+def groot(dp, dp_cr, gamma):
+    """Signed regularised ``dp**(1/gamma)``, linear below ``dp_cr`` (eq. 9, I3)."""
+    e = 1.0 / gamma
+    if dp_cr > 0.0:
+        return dp * (dp * dp + dp_cr * dp_cr) ** (0.5 * (e - 1.0))
+    return dp ** e if dp > 0.0 else 0.0
+
+
+# Penetration, as a fraction of the stroke limit, over which an end stop's damping ramps in.
+STOP_RAMP = 0.01
+
+
+@jit
+def stop_force(x, v, x_max, k, c):
+    """Penalty end stop at ``+-x_max``: spring and damper that push and never pull.
+
+    The damping ramps in over ``STOP_RAMP * x_max`` of penetration, so the force is continuous
+    at contact (a jump there stalls any error-controlled integrator at a fast impact).
+    """
+    if k <= 0.0:
+        return 0.0
+    if x > x_max:
+        pen = x - x_max
+        ramp = min(pen / (STOP_RAMP * x_max), 1.0)
+        return min(-k * pen - ramp * c * v, 0.0)
+    if x < -x_max:
+        pen = x + x_max
+        ramp = min(-pen / (STOP_RAMP * x_max), 1.0)
+        return max(-k * pen - ramp * c * v, 0.0)
+    return 0.0
+
+
+@jit
+def bulk_modulus(P, beta, alpha, p_atm):
+    """Effective bulk modulus: pure liquid, or isothermal mixture with entrained air (I4)."""
+    if alpha <= 0.0:
+        return beta
+    p_abs = max(P + p_atm, 1.0)
+    theta = alpha / (1.0 - alpha) * p_atm / p_abs
+    return beta * (1.0 + theta) / (1.0 + theta * beta / p_abs)
+
+
+# Relaxation time that returns a pressure pushed below absolute zero by a finite step [s].
+FLOOR_RELAX = 1.0e-4
+
+
+@jit
+def continuity(P, flow, volume, beta, alpha, p_atm, floor, dp_floor):
+    """Continuity ``dP/dt = beta/V * flow`` with the cavitation floor at absolute zero.
+
+    Within ``dp_floor`` of absolute zero an outflow lowers the pressure ever more slowly (the
+    liquid cavitates instead), and a pressure below zero relaxes back in ``FLOOR_RELAX``;
+    ``floor`` (0 or 1) switches this off or on.
+    """
+    d = bulk_modulus(P, beta, alpha, p_atm) / volume * flow
+    if floor > 0.0:
+        p_abs = P + p_atm
+        if d < 0.0 and p_abs < dp_floor:
+            d *= max(p_abs, 0.0) / dp_floor
+        if p_abs < 0.0:
+            d -= p_abs / FLOOR_RELAX
+    return d
+
+
+@jit
+def lag(state, target, tau):
+    """Rate of a first-order lag of time constant ``tau`` toward ``target``."""
+    return (target - state) / tau
+
+
+@jit
+def clip01(v):
+    """``v`` limited to [0, 1]."""
+    return min(max(v, 0.0), 1.0)

@@ -1,0 +1,95 @@
+"""Relief valve of Fig. 1: a poppet that cracks at ``p_crack`` and is fully open at
+``p_full``, where it passes ``q_full``.
+
+    s* = clip((dp - p_crack) / (p_full - p_crack), 0, 1),     dp = P_in - P_out
+    Q  = q_full s sqrt(dp / p_full)                            (in -> out, dp > 0)
+
+With ``tau > 0`` the opening ``s`` follows ``s*`` with that first-order lag (the poppet's
+dynamics); with ``tau = 0`` it is ``s*`` itself, the static law of the paper's plant.
+"""
+
+from dataclasses import dataclass
+import math
+
+import numba
+
+from ..schema import fmt, spec
+from .base import Component, PortSpec, SignalSpec, StateSpec
+from .laws import clip01, lag
+
+jit = numba.njit(cache=True, fastmath=False, nogil=True)
+
+
+@jit
+def opening(dp, p_crack, p_full):
+    """The static opening ``s*`` at pressure difference ``dp``."""
+    if dp <= p_crack:
+        return 0.0
+    return min((dp - p_crack) / (p_full - p_crack), 1.0)
+
+
+@jit
+def flow(dp, s, p_full, q_full):
+    """Flow at opening ``s`` and pressure difference ``dp`` (none backwards)."""
+    if s <= 0.0 or dp <= 0.0:
+        return 0.0
+    return q_full * s * math.sqrt(dp / p_full)
+
+
+@jit
+def static_flow(dp, p_crack, p_full, q_full):
+    """The paper plant's relief law (no poppet lag)."""
+    if dp <= p_crack:
+        return 0.0
+    return q_full * opening(dp, p_crack, p_full) * math.sqrt(dp / p_full)
+
+
+@jit
+def kernel(t, x, dx, u, p, y, P, Q):
+    a, b = int(p[0]), int(p[1])
+    p_crack, p_full, q_full, tau = p[2], p[3], p[4], p[5]
+    dp = P[a] - P[b]
+    if tau > 0.0:
+        s = clip01(x[0])
+        dx[0] = lag(x[0], opening(dp, p_crack, p_full), tau)
+        q = flow(dp, s, p_full, q_full)
+    else:
+        s = opening(dp, p_crack, p_full)
+        q = static_flow(dp, p_crack, p_full, q_full)
+    Q[a] -= q
+    Q[b] += q
+    y[0] = q
+    y[1] = s
+    y[2] = P[a]
+
+
+@dataclass(frozen=True)
+class ReliefParams:
+    p_crack: float = spec('Pa', 'cracking pressure difference', 1.0e5, 1.0e8)
+    p_full: float = spec('Pa', 'pressure difference of full opening', 1.0e5, 1.0e8)
+    q_full: float = spec('m^3/s', 'flow at p_full', 1.0e-7, 1.0)
+    tau: float = spec('s', 'poppet time constant; 0 = static', 0.0, 1.0, default=0.0)
+
+    def cross_checks(self):
+        if self.p_full <= self.p_crack:
+            return [f'p_full = {fmt(self.p_full)} Pa must exceed p_crack = '
+                    f'{fmt(self.p_crack)} Pa']
+        return []
+
+
+class Relief(Component):
+    kind = 'relief'
+    doc = 'relief valve: cracks at p_crack, full flow q_full at p_full, optional poppet lag'
+    Params = ReliefParams
+    PORTS = (PortSpec('in', 'protected node'), PortSpec('out', 'tank side'))
+    SIGNALS = (SignalSpec('flow', 'm^3/s', 'relieved flow in -> out'),
+               SignalSpec('opening', '-', 'poppet opening 0..1'),
+               SignalSpec('pressure', 'Pa', 'pressure at the inlet'))
+    kernel = kernel
+
+    def states(self):
+        return (StateSpec('opening', '-', 1.0),) if self.params.tau > 0.0 else ()
+
+    def pack(self):
+        r = self.params
+        return [r.p_crack, r.p_full, r.q_full, r.tau]
