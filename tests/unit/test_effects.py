@@ -133,7 +133,7 @@ def test_solenoid_current_dynamics(params):
 
 def test_regularised_root_allows_reverse_flow(params):
     """Below the crack pressure drop the orifice is laminar and flow may reverse (I3)."""
-    from hydropump_sim._core import groot, sroot
+    from hydropump_sim.components.laws import groot, sroot
     assert sroot(-4.0e6, 1e5) == pytest.approx(-np.sqrt(4.0e6), rel=1e-3)
     assert sroot(10.0, 1e5) == pytest.approx(10.0 / np.sqrt(1e5), rel=1e-6)
     assert sroot(-1.0, 0.0) == 0.0
