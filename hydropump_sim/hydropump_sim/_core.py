@@ -51,7 +51,7 @@ from .components.relief import static_flow
 # What the plant modules (trim, linear, simulate) take from here besides the layouts below.
 __all__ = ['FINE', 'N_U', 'N_Y', 'P_DITHA', 'P_DPCRU', 'P_GAMMA', 'P_MUU', 'P_PATM', 'advance',
            'evaluate', 'evaluate_c', 'groot', 'jacobian', 'pump_flow', 'relief_flow', 'run',
-           'state_scale', 'structure']
+           'state_scale', 'structure', 'structure_rows']
 
 # Inputs: commanded current variation i_s [A], load pressure P_u [Pa], aperture xi_u [-],
 # shaft frequency f_p [Hz].
@@ -146,21 +146,25 @@ def jacobian(t, x, u, p, f0, scale, J, work, ybuf):
     ig.jacobian(evaluate_c, t, x, u, p, f0, scale, J, work, ybuf, colors, pattern)
 
 
+def structure_rows(P: np.ndarray, n: int) -> dict:
+    """:func:`structure` of several parameter rows stepped together: the scales of the
+    first, the time dependence of any."""
+    st = structure(P[0], n)
+    freq = max(float(np.max(P[:, P_DITHF])), 1.0)
+    st.update(timed=bool(np.any(P[:, P_DITHA] > 0.0)), dt_time=1.0e-7 / freq)
+    return st
+
+
 def run(X0, t0, dt, U, P, rtol, h_min, max_steps, decim, Y, X, stats, max_total,
         own_jacobian=False):
     """The stepper's :func:`~hydropump_sim.integrator.run` on the plant (rows of ``X0`` and
-    ``P`` are copies, see there). The time dependence (dither) is taken from every row."""
-    st = structure(P[0], X0.shape[1])
-    timed = bool(np.any(P[:, P_DITHA] > 0.0))
-    freq = max(float(np.max(P[:, P_DITHF])), 1.0)
-    return ig.run(evaluate_c, X0, t0, dt, U, P, st['scale'], rtol, h_min, max_steps, decim, Y,
-                  X, stats, max_total, own_jacobian, timed, 1.0e-7 / freq, st['colors'],
-                  st['pattern'])
+    ``P`` are copies, see there)."""
+    m = ig.model(evaluate_c, structure_rows(P, X0.shape[1]))
+    return ig.run(m, X0, t0, dt, U, P, rtol, h_min, max_steps, decim, Y, X, stats, max_total,
+                  own_jacobian)
 
 
 def advance(t0, t1, X, u, P, h, rtol, h_min, max_steps, stats, own_jacobian=False):
     """The stepper's :func:`~hydropump_sim.integrator.advance` on the plant."""
-    st = structure(P[0], X.shape[1])
-    return ig.advance(evaluate_c, t0, t1, X, u, P, h, st['scale'], rtol, h_min, max_steps,
-                      stats, own_jacobian, st['timed'], st['dt_time'], st['colors'],
-                      st['pattern'], N_Y)
+    m = ig.model(evaluate_c, structure(P[0], X.shape[1]))
+    return ig.advance(m, t0, t1, X, u, P, h, rtol, h_min, max_steps, stats, own_jacobian, N_Y)

@@ -18,14 +18,23 @@ What the stepper needs to know of a model besides its function is its *structure
 """
 
 import math
+import warnings
 
 import numba
 from numba import types
+from numba.core.errors import NumbaExperimentalFeatureWarning
 import numpy as np
+
+# Models are first-class functions to the stepper (numba calls the feature experimental; it
+# is what lets the stepper compile once for every model).
+warnings.filterwarnings('ignore', category=NumbaExperimentalFeatureWarning)
 
 #: Signature of a model's ``evaluate(t, x, u, p, dx, y)``.
 _A = types.float64[::1]
 EVALUATE = types.void(types.float64, _A, _A, _A, _A, _A)
+#: Signature of a model's compiled Jacobian ``jacobian(t, x, u, p, J, y)`` (``y``: scratch of
+#: the outputs' size).
+JACOBIAN = types.void(types.float64, _A, _A, _A, types.float64[:, ::1], _A)
 
 # Rodas4 (Hairer & Wanner, Solving ODEs II, sec. IV.7), in the form
 #   (I/(h g) - J) k_i = f(t + a_i h, x + sum_j A_ij k_j) + sum_j C_ij k_j / h + h g_i f_t.
@@ -55,6 +64,32 @@ OK, FAIL_STEP, FAIL_NAN, FAIL_STEPS, FAIL_BUDGET = 0, 1, 2, 3, 4
 jit = numba.njit(cache=True, fastmath=False, nogil=True)
 # Helpers of the stepper, inlined into it (a call per stage costs about a fifth of a step).
 inline = numba.njit(cache=True, fastmath=False, nogil=True, inline='always')
+
+
+@numba.cfunc(JACOBIAN, cache=True, nogil=True)
+def no_jacobian(t, x, u, p, J, y):
+    """The Jacobian of a model that has none of its own (differences of ``evaluate``)."""
+
+
+@jit
+def call(f, t, x, u, p, dx, y):
+    """Evaluate a model's compiled ``f`` once (from Python: analysis, steady states)."""
+    f(t, x, u, p, dx, y)
+
+
+@jit
+def call_jacobian(jac, t, x, u, p, J, y):
+    """A model's compiled Jacobian once, from Python."""
+    jac(t, x, u, p, J, y)
+
+
+def model(f, st: dict, jac=None) -> tuple:
+    """What the stepper takes of a model: its ``evaluate`` (a cfunc of :data:`EVALUATE`),
+    its own Jacobian (a cfunc of :data:`JACOBIAN`) or ``None``, and its structure ``st``
+    (``scale``, ``timed``, ``dt_time``, ``colors``, ``pattern``; see the module)."""
+    return (f, no_jacobian if jac is None else jac, jac is not None,
+            np.ascontiguousarray(st['scale'], dtype=np.float64), bool(st['timed']),
+            float(st['dt_time']), st['colors'], st['pattern'])
 
 
 def dense(n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -172,10 +207,13 @@ def time_derivative(f, t, x, u, p, f0, ft, work, ybuf, timed, dt_time):
 
 
 @inline
-def w_matrix(f, t, x, u, p, h, f0, scale, G, piv, J, work, ybuf, colors, pattern):
+def w_matrix(m, t, x, u, p, h, f0, G, piv, J, work, ybuf):
     """``G = I/(h gamma) - df/dx`` at ``x``, LU-factorised in place; False if singular."""
     n = x.shape[0]
-    jacobian(f, t, x, u, p, f0, scale, J, work, ybuf, colors, pattern)
+    if m[2]:
+        m[1](t, x, u, p, J, ybuf)
+    else:
+        jacobian(m[0], t, x, u, p, f0, m[3], J, work, ybuf, m[6], m[7])
     for i in range(n):
         for j in range(n):
             G[i, j] = -J[i, j]
@@ -214,8 +252,7 @@ def workspace(n, ny):
 
 
 @jit
-def rodas_step(f, t, X, u, P, h, scale, rtol, Xnew, own_jacobian, timed, dt_time, colors,
-               pattern, ws):
+def rodas_step(m, t, X, u, P, h, rtol, Xnew, own_jacobian, ws):
     """One Rodas4 step of size ``h`` for every row of ``X`` (a copy of the state per row of
     packed parameters ``P``); returns the scaled error norm of row 0 (inf if not finite).
 
@@ -226,17 +263,17 @@ def rodas_step(f, t, X, u, P, h, scale, rtol, Xnew, own_jacobian, timed, dt_time
     otherwise they share row 0's factorised ``G`` and cost six right-hand sides a step.
     ``ws`` is the work space of :func:`workspace`.
     """
-    m, n = X.shape
+    rows, n = X.shape
+    f, scale = m[0], m[3]
     f0, ft, work, xs, ybuf, J, G, K, piv = ws
     err = 0.0
-    for r in range(m):
+    for r in range(rows):
         x = X[r]
         p = P[r]
         f(t, x, u, p, f0, ybuf)
-        time_derivative(f, t, x, u, p, f0, ft, work, ybuf, timed, dt_time)
+        time_derivative(f, t, x, u, p, f0, ft, work, ybuf, m[4], m[5])
         if r == 0 or own_jacobian:
-            if not w_matrix(f, t, x, u, p, h, f0, scale, G, piv, J, work, ybuf, colors,
-                            pattern):
+            if not w_matrix(m, t, x, u, p, h, f0, G, piv, J, work, ybuf):
                 return np.inf
         stages(f, t, x, u, p, h, f0, ft, G, piv, K, xs, work, ybuf)
         for i in range(n):
@@ -259,17 +296,16 @@ def rodas_step(f, t, X, u, P, h, scale, rtol, Xnew, own_jacobian, timed, dt_time
 
 
 @jit
-def advance(f, t0, t1, X, u, P, h, scale, rtol, h_min, max_steps, stats, own_jacobian, timed,
-            dt_time, colors, pattern, ny):
+def advance(m, t0, t1, X, u, P, h, rtol, h_min, max_steps, stats, own_jacobian, ny):
     """Integrate every row of ``X`` in place from ``t0`` to ``t1`` with inputs ``u`` held.
 
     Adaptive Rodas4 steps inside the interval, controlled by row 0 (see :func:`rodas_step`);
     ``h`` is the proposed first step, and the proposed next step is returned with a status
     code. ``stats`` accumulates ``[accepted, rejected]``. Absolute tolerances are ``rtol``
-    times the state scales ``scale``; ``ny`` is the number of outputs of ``f``.
+    times the model's state scales; ``ny`` is the number of its outputs.
     """
-    m, n = X.shape
-    Xnew = np.empty((m, n))
+    rows, n = X.shape
+    Xnew = np.empty((rows, n))
     ws = workspace(n, ny)
     t = t0
     h = min(h, t1 - t0)
@@ -282,11 +318,10 @@ def advance(f, t0, t1, X, u, P, h, scale, rtol, h_min, max_steps, stats, own_jac
         steps += 1
         last = t + h >= t1 - 1.0e-12 * max(abs(t1), 1.0)
         hs = t1 - t if last else h
-        err = rodas_step(f, t, X, u, P, hs, scale, rtol, Xnew, own_jacobian, timed, dt_time,
-                         colors, pattern, ws)
+        err = rodas_step(m, t, X, u, P, hs, rtol, Xnew, own_jacobian, ws)
         if err <= 1.0:
             stats[0] += 1
-            for r in range(m):
+            for r in range(rows):
                 for i in range(n):
                     X[r, i] = Xnew[r, i]
             t = t1 if last else t + hs
@@ -309,8 +344,8 @@ def advance(f, t0, t1, X, u, P, h, scale, rtol, h_min, max_steps, stats, own_jac
 
 
 @jit
-def run(f, X0, t0, dt, U, P, scale, rtol, h_min, max_steps, decim, Y, X, stats, max_total,
-        own_jacobian, timed, dt_time, colors, pattern):
+def run(m, X0, t0, dt, U, P, rtol, h_min, max_steps, decim, Y, X, stats, max_total,
+        own_jacobian):
     """Integrate every row of ``X0`` (one per row of ``P``, see :func:`rodas_step`) over
     ``len(U)`` increments of ``dt``, inputs ``U[k]`` held on each.
 
@@ -319,26 +354,27 @@ def run(f, X0, t0, dt, U, P, scale, rtol, h_min, max_steps, decim, Y, X, stats, 
     bound). Returns ``(status, increments done)``.
     """
     n_inc = U.shape[0]
-    m, n = X0.shape
+    rows, n = X0.shape
     ny = Y.shape[2]
+    f = m[0]
     x = X0.copy()
     dx = np.empty(n)
     h = dt
-    for r in range(m):
+    for r in range(rows):
         f(t0, x[r], U[0], P[r], dx, Y[r, 0])
         X[r, 0, :] = x[r]
     row = 1
     for k in range(n_inc):
         t = t0 + k * dt
-        h, status = advance(f, t, t + dt, x, U[k], P, h, scale, rtol, h_min, max_steps, stats,
-                            own_jacobian, timed, dt_time, colors, pattern, ny)
+        h, status = advance(m, t, t + dt, x, U[k], P, h, rtol, h_min, max_steps, stats,
+                            own_jacobian, ny)
         if status != OK:
             return status, k
         if max_total > 0 and stats[0] + stats[1] > max_total:
             return FAIL_BUDGET, k + 1
         if (k + 1) % decim == 0:
             kk = min(k + 1, n_inc - 1)
-            for r in range(m):
+            for r in range(rows):
                 f(t + dt, x[r], U[kk], P[r], dx, Y[r, row])
                 X[r, row, :] = x[r]
             row += 1

@@ -8,24 +8,21 @@ part of the plant and is evaluated continuously.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 import math
 from pathlib import Path
 import time
-from typing import Union
 
 import numpy as np
 
 from . import _core as c
 from . import integrator as ig
 from .errors import HydropumpError, InputError
-from .inputs import held
+from .inputs import sample, Signal
 from .model import INPUTS, OUTPUT_UNITS, OUTPUTS, pack, state_names
 from .params import check_input, Params
 from .trim import equilibrium, operating_inputs
-
-Signal = Union[float, Callable[[float], float], np.ndarray, None]
 
 
 class IntegrationError(HydropumpError, RuntimeError):
@@ -98,38 +95,6 @@ class SimResult:
                    comments='', fmt='%.10g')
 
 
-def _sample(signal: Signal, default: float, t: np.ndarray, name: str,
-            dt_held: float = 0.0) -> np.ndarray:
-    """Evaluate a float, a callable of time, an array held per ``dt_held`` or ``None`` on the
-    increment start times."""
-    if signal is None:
-        return np.full(t.shape, default)
-    if isinstance(signal, np.ndarray) and signal.ndim == 1:
-        n = int(round(t[-1] / dt_held)) + 1 if t.size else 0
-        if signal.size < n:
-            raise InputError(f'{name}: {signal.size} held samples cover '
-                             f'{signal.size * dt_held:.6g} s; the run needs {n} '
-                             f'({n * dt_held:.6g} s at {dt_held:.6g} s a sample)')
-        v = np.asarray(held(np.arange(n) * dt_held, signal[:n])(t), dtype=float)
-    elif callable(signal):
-        try:
-            v = np.asarray(signal(t), dtype=float)
-            if v.shape != t.shape:
-                raise ValueError
-        except Exception:
-            v = np.array([float(signal(float(tk))) for tk in t])
-    else:
-        try:
-            v = np.full(t.shape, float(signal))
-        except (TypeError, ValueError):
-            raise InputError(f'{name} must be a number or a function of time, got '
-                             f'{signal!r}') from None
-    if not np.all(np.isfinite(v)):
-        k = int(np.flatnonzero(~np.isfinite(v))[0])
-        raise InputError(f'{name} is not finite at t = {t[k]:.6g} s')
-    return v
-
-
 def input_table(params: Params, t: np.ndarray, current: Signal, load_pressure: Signal = None,
                 aperture: Signal = None, shaft_speed: Signal = None, dt_held: float = 0.0
                 ) -> tuple[np.ndarray, int]:
@@ -139,14 +104,14 @@ def input_table(params: Params, t: np.ndarray, current: Signal, load_pressure: S
     Returns the table and the number of clamped current samples.
     """
     u0 = operating_inputs(params)
-    I_s = _sample(current, params.I_nominal, t, 'current', dt_held)
+    I_s = sample(current, params.I_nominal, t, 'current', dt_held)
     lo, hi = params.I_limits
     n_clamped = int(np.count_nonzero((I_s < lo) | (I_s > hi)))
     U = np.empty((t.size, c.N_U))
     U[:, c.U_IS] = np.clip(I_s, lo, hi) - params.I_nominal
-    U[:, c.U_PU] = _sample(load_pressure, u0[c.U_PU], t, 'load_pressure', dt_held)
-    U[:, c.U_XI] = _sample(aperture, u0[c.U_XI], t, 'aperture', dt_held)
-    U[:, c.U_FP] = _sample(shaft_speed, u0[c.U_FP], t, 'shaft_speed', dt_held)
+    U[:, c.U_PU] = sample(load_pressure, u0[c.U_PU], t, 'load_pressure', dt_held)
+    U[:, c.U_XI] = sample(aperture, u0[c.U_XI], t, 'aperture', dt_held)
+    U[:, c.U_FP] = sample(shaft_speed, u0[c.U_FP], t, 'shaft_speed', dt_held)
     # The operating-point inputs take the ranges of their plant parameters.
     for col, name in ((c.U_PU, 'load_pressure'), (c.U_XI, 'aperture'),
                       (c.U_FP, 'shaft_speed')):
@@ -160,8 +125,11 @@ def input_table(params: Params, t: np.ndarray, current: Signal, load_pressure: S
 MAX_SAMPLES = 20_000_000
 
 
-def _grid(duration: float, dt_out: float, dt_max: float) -> tuple[int, int, float]:
-    """Output points, increments per output and increment length."""
+def time_grid(duration: float, dt_out: float, dt_max: float, n_u: int = c.N_U,
+              n_y: int = c.N_Y) -> tuple[int, int, float]:
+    """Output points, increments per output and increment length (checked: one line for
+    a duration or a step out of range, or a grid too large for memory with ``n_u`` inputs
+    and ``n_y`` outputs a sample)."""
     if not (isinstance(duration, (int, float)) and not isinstance(duration, bool)
             and math.isfinite(duration) and duration > 0):
         raise InputError(f'duration = {duration!r}: expected a positive number of seconds')
@@ -172,7 +140,7 @@ def _grid(duration: float, dt_out: float, dt_max: float) -> tuple[int, int, floa
     n_out = duration / dt_out
     decim = max(1, int(math.ceil(dt_out / dt_max - 1e-9)))
     if n_out * decim > MAX_SAMPLES:
-        gib = n_out * (decim * c.N_U + c.N_Y + 8) * 8 / 2 ** 30
+        gib = n_out * (decim * n_u + n_y + 8) * 8 / 2 ** 30
         raise InputError(f'duration = {duration:.6g} s at dt_out = {dt_out:.6g} s (inputs held '
                          f'over {dt_out / decim:.6g} s) needs {n_out * decim:.3g} samples, '
                          f'about {gib:.3g} GiB; at most {MAX_SAMPLES:.3g}: shorten the '
@@ -258,7 +226,7 @@ def simulate_copies(params: Sequence[Params], duration: float, current: Signal =
 def _simulate(plist, duration, current, model, load_pressure, aperture, shaft_speed, x0s,
               dt_out, dt_max, method, config, rtol, t0, own_jacobian=False):
     params = plist[0]
-    n_out, decim, dt = _grid(duration, dt_out, dt_max)
+    n_out, decim, dt = time_grid(duration, dt_out, dt_max)
     n_inc = n_out * decim
     t_inc = np.arange(n_inc) * dt
     U, n_clamped = input_table(params, t_inc, current, load_pressure, aperture, shaft_speed,
@@ -301,8 +269,17 @@ _CHUNK = 20000
 
 
 def _run_rodas(X0, dt, U, P, rtol, config, decim, Y, X, stats, t0=0.0, own_jacobian=False):
-    """The compiled Rodas4 loop (rows of ``X0``/``P``: copies, see :func:`simulate_copies`)
-    under the step and wall-time budgets of ``config``."""
+    """The compiled Rodas4 loop on the paper's plant (rows of ``X0``/``P``: copies, see
+    :func:`simulate_copies`)."""
+    run_model(ig.model(c.evaluate_c, c.structure_rows(P, X0.shape[1])), X0, dt, U, P, rtol,
+              config, decim, Y, X, stats, t0, own_jacobian)
+
+
+def run_model(model: tuple, X0, dt, U, P, rtol, config, decim, Y, X, stats, t0=0.0,
+              own_jacobian=False):
+    """The stepper's :func:`~hydropump_sim.integrator.run` of a model
+    (:func:`hydropump_sim.integrator.model`) under the step and wall-time budgets of
+    ``config``, in chunks; :class:`IntegrationError` on failure."""
     n_out = Y.shape[1] - 1
     rows = max(1, _CHUNK // decim)
     budget = int(max(config.steps_per_second * U.shape[0] * dt, 1000))
@@ -311,19 +288,19 @@ def _run_rodas(X0, dt, U, P, rtol, config, decim, Y, X, stats, t0=0.0, own_jacob
     for r0 in range(0, n_out, rows):
         r1 = min(r0 + rows, n_out)
         k0, k1 = r0 * decim, r1 * decim
-        status, done = c.run(x, t0 + k0 * dt, dt, U[k0:k1], P, rtol, config.h_min,
-                             config.max_steps, decim, Y[:, r0:r1 + 1], X[:, r0:r1 + 1], stats,
-                             budget, own_jacobian)
+        status, done = ig.run(model, x, t0 + k0 * dt, dt, U[k0:k1], P, rtol, config.h_min,
+                              config.max_steps, decim, Y[:, r0:r1 + 1], X[:, r0:r1 + 1], stats,
+                              budget, own_jacobian)
         t_fail = (k0 + done) * dt
-        if status == c.FAIL_BUDGET:
+        if status == ig.FAIL_BUDGET:
             raise IntegrationError(
                 f'the model is too stiff to integrate: {budget} solver steps were not enough '
                 f'for the first {t_fail:.6g} s (budget {config.steps_per_second:g} per '
                 'simulated second; a nominal run takes about 10000); check parameters near '
                 'the ends of their ranges')
-        if status != c.OK:
-            why = {c.FAIL_STEP: 'step size underflow', c.FAIL_NAN: 'non-finite state',
-                   c.FAIL_STEPS: 'too many steps in one increment'}[status]
+        if status != ig.OK:
+            why = {ig.FAIL_STEP: 'step size underflow', ig.FAIL_NAN: 'non-finite state',
+                   ig.FAIL_STEPS: 'too many steps in one increment'}[status]
             raise IntegrationError(f'integration failed at t = {t_fail:.6g} s: {why}')
         x = X[:, r1].copy()
         elapsed = time.perf_counter() - t_wall
@@ -401,7 +378,8 @@ class Simulator:
         self.dt = dt
         self.config = config
         self._p = pack(params, model)
-        self._structure = c.structure(self._p, len(state_names(params, model)))
+        self._model = ig.model(c.evaluate_c, c.structure(self._p, len(state_names(params,
+                                                                                   model))))
         self.stats = np.zeros(2, dtype=np.int64)
         self.u = operating_inputs(params)
         self.t = 0.0
@@ -442,11 +420,9 @@ class Simulator:
         t0 = self.steps * self.dt
         x = self.x.copy()
         cfg = self.config
-        st = self._structure
-        h, status = ig.advance(c.evaluate_c, t0, t0 + self.dt, x[None], self.u, self._p[None],
-                               self._h, st['scale'], cfg.rtol, cfg.h_min, cfg.max_steps,
-                               self.stats, False, st['timed'], st['dt_time'], st['colors'],
-                               st['pattern'], c.N_Y)
+        h, status = ig.advance(self._model, t0, t0 + self.dt, x[None], self.u, self._p[None],
+                               self._h, cfg.rtol, cfg.h_min, cfg.max_steps, self.stats, False,
+                               c.N_Y)
         if status != c.OK:
             raise IntegrationError(f'integration failed at t = {t0:.6g} s (code {status})')
         self.x = x

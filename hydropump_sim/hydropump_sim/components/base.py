@@ -44,12 +44,14 @@ from ..schema import build, ParamSpec, spec_map
 @dataclass(frozen=True)
 class PortSpec:
     """A hydraulic port: ``many`` takes a list of nodes (a shuttle network's inputs);
-    ``optional`` may be left unconnected."""
+    ``optional`` may be left unconnected; ``sense`` only reads its node's pressure (no flow
+    through it)."""
 
     name: str
     desc: str
     many: bool = False
     optional: bool = False
+    sense: bool = False
 
 
 @dataclass(frozen=True)
@@ -111,11 +113,16 @@ class Component:
     INPUTS: ClassVar[tuple[InputSpec, ...]] = ()
     SIGNALS: ClassVar[tuple[SignalSpec, ...]] = ()
     kernel: ClassVar[Any] = None
+    #: Its flow leaves the circuit (a load to a held pressure): a return path of its own.
+    EXTERNAL_RETURN: ClassVar[bool] = False
 
-    def __init__(self, name: str, params: Any, ports: Mapping[str, list[str]]):
+    def __init__(self, name: str, params: Any, ports: Mapping[str, list[str]],
+                 fluid: Any = None):
         self.name = name
         self.params = params
         self.ports = dict(ports)
+        #: The circuit's fluid (``hydropump_sim.params.Fluid``): density for orifices.
+        self.fluid = fluid
 
     # ---- parameters -----------------------------------------------------------------------
 
@@ -157,6 +164,11 @@ class Component:
         if isinstance(spec.default, str):
             return float(getattr(self.params, spec.default))
         return float(spec.default)
+
+    def pressure_guess(self, u: Mapping[str, float]) -> dict[str, float]:
+        """Pressures [Pa] this component expects at its ports in a steady state (a load
+        holding its force), for the start of the steady-state search."""
+        return {}
 
     def initial_state(self, P: Mapping[str, float], u: Mapping[str, float]) -> np.ndarray:
         """A start state for the equilibrium search, from the pressures at the ports

@@ -99,3 +99,10 @@ def lag(state, target, tau):
 def clip01(v):
     """``v`` limited to [0, 1]."""
     return min(max(v, 0.0), 1.0)
+
+
+@jit
+def balance(error, p_band):
+    """Opening 0..1 of a pressure-balance spool: half open at zero ``error`` [Pa] (the
+    spring setting), fully open ``p_band / 2`` above it, closed ``p_band / 2`` below."""
+    return clip01(0.5 + error / p_band)

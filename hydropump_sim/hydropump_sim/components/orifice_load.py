@@ -58,6 +58,7 @@ class OrificeLoad(Component):
                SignalSpec('load_pressure', 'Pa', 'load pressure P_u'),
                SignalSpec('dp', 'Pa', 'pressure drop across the orifice'))
     kernel = kernel
+    EXTERNAL_RETURN = True
 
     def pack(self):
         r = self.params

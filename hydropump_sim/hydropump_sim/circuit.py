@@ -1,0 +1,777 @@
+"""The circuit compiler: a YAML description of components connected at named hydraulic
+nodes becomes one compiled ``evaluate`` (right-hand side and outputs) for the stepper of
+:mod:`hydropump_sim.integrator`.
+
+A circuit file::
+
+    name: paper                       # optional
+    plant: ../pump.yaml               # a plant params file; 'plant.<group>.<name>' reads it
+    fluid: {beta: 1.6e+9}             # optional: the circuit's fluid over the plant's
+    components:
+      pump: {type: pump, ports: {out: line}}
+      line: {type: volume, ports: {node: line}, V: plant.line.V_l}
+      load: {type: orifice_load, ports: {in: line}, mu: plant.line.mu_u, ...}
+
+Each component names its ``type`` (``hydropump_sim/components``), connects each port to a
+node (a list for a port that takes several), and gives its parameters, nested or dotted,
+in SI units. The compiler checks everything and reports one line per problem naming the
+component and the port; then it lays out
+
+- the **states**: every component's own, then one pressure per node that has a volume
+  (continuity, eqs. 3 and 9); a node whose pressure a component fixes (a tank) has none;
+- the **inputs** ``<component>.<input>`` and the **signals** ``<component>.<signal>``
+  (``y``: every node's pressure and net inflow first, then the components' signals);
+- the **parameters** ``p``: the fluid, each node's volume or fixed pressure, then each
+  component's block (its ports' node indices, then its own values);
+
+and generates the source of ``evaluate``: a call of each component's compiled kernel on
+its slices, then continuity at each node. The source depends on the structure only (which
+components, which ports, how many states), never on parameter values, so a file compiles
+once per structure and is cached on disk (``$HYDROPUMP_CACHE``, else
+``~/.cache/hydropump``) for every later process.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+import hashlib
+import importlib.util
+import os
+from pathlib import Path
+import sys
+import tempfile
+from typing import Any
+
+import numpy as np
+
+from .components import registry
+from .components.base import Component, Expansion, PortSpec
+from .errors import HydropumpError
+from .params import Fluid, load_params
+from .schema import build, closest_name, flatten, fmt, ParamError, read_yaml, to_flat
+
+
+class CircuitError(HydropumpError, ValueError):
+    """An invalid circuit: ``lines`` holds one line per problem."""
+
+    head = 'invalid circuit'
+
+
+_TOP = ('name', 'plant', 'fluid', 'components', 'description')
+_ENTRY = ('type', 'ports')
+# Fluid entries the continuity of a node reads, in the order of the p vector's fluid block.
+FLUID_KEYS = ('beta', 'alpha_air', 'p_atm', 'pressure_floor', 'dp_floor')
+N_FLUID = len(FLUID_KEYS)
+NODE_PREFIX = 'node:'
+
+
+@dataclass
+class Part:
+    """A primitive component placed in the circuit, with its slices of ``x``, ``u``, ``y``
+    and ``p``."""
+
+    comp: Component
+    x: slice
+    u: slice
+    y: slice
+    p: slice
+    ports: list[int]          # node indices read through this part's ports (flow or sense)
+
+
+@dataclass
+class Circuit:
+    """A checked, laid-out and compiled circuit (see the module).
+
+    Attributes
+    ----------
+    name, source : str
+    fluid : Fluid
+    parts : list of Part
+        The primitives, in the order their kernels run.
+    composites : dict
+        Composite components by name, with their expansion (aliases of inputs, signals).
+    nodes : list of str
+    fixed : dict
+        Node -> ``(component, 'param' or 'input', name)`` of the component fixing it.
+    volume : dict
+        Node -> total volume [m^3] (nodes that are not fixed).
+    states, state_units, state_scale, integrating
+        Full state names (``pump.x_c``, ``node:line``), units, scales, integrating flags.
+    inputs, input_units, u0
+        Full input names, units, and the values they hold unless told otherwise.
+    signals, signal_units
+        Full signal names (``node:<n>`` pressures and ``node:<n>.inflow`` first).
+    p : ndarray
+    module
+        The compiled module (``evaluate``, ``evaluate_c``).
+    """
+
+    name: str
+    source: str
+    fluid: Fluid
+    parts: list[Part]
+    composites: dict[str, Expansion]
+    nodes: list[str]
+    fixed: dict[str, tuple[str, str, str]]
+    volume: dict[str, float]
+    states: list[str]
+    state_units: list[str]
+    state_scale: np.ndarray
+    integrating: np.ndarray
+    inputs: list[str]
+    input_units: list[str]
+    input_ranges: list[tuple[float, float]]
+    u0: np.ndarray
+    signals: list[str]
+    signal_units: list[str]
+    p: np.ndarray
+    pattern: np.ndarray
+    colors: np.ndarray
+    dither: float
+    code: str
+    scale_offset: int = 0
+    entries: dict[str, Any] = field(repr=False, default_factory=dict)
+    module: Any = field(repr=False, default=None)
+
+    # ---- names ----------------------------------------------------------------------------
+
+    def signal_index(self, name: str) -> int:
+        """Index in ``y`` of a signal (a composite's own names resolve to its parts')."""
+        name = self._alias(name, 'signals')
+        try:
+            return self.signals.index(name)
+        except ValueError:
+            raise CircuitError([_unknown(name, self.signals, 'signal')]) from None
+
+    def input_index(self, name: str) -> int:
+        name = self._alias(name, 'inputs')
+        try:
+            return self.inputs.index(name)
+        except ValueError:
+            raise CircuitError([_unknown(name, self.inputs, 'input')]) from None
+
+    def _alias(self, name: str, kind: str) -> str:
+        head, _, rest = name.partition('.')
+        exp = self.composites.get(head)
+        if exp is not None and rest in getattr(exp, kind):
+            return getattr(exp, kind)[rest]
+        return name
+
+    def component_signals(self) -> list[str]:
+        """Every signal a user reads, ``<component>.<signal>``: the parts', and each
+        composite's own names."""
+        out = [s for s in self.signals if not s.startswith(NODE_PREFIX)]
+        for name, exp in self.composites.items():
+            out += [f'{name}.{alias}' for alias in exp.signals]
+        return out
+
+    def all_inputs(self) -> list[str]:
+        out = list(self.inputs)
+        for name, exp in self.composites.items():
+            out += [f'{name}.{alias}' for alias in exp.inputs]
+        return out
+
+    def node_state(self, node: str) -> int:
+        return self.states.index(f'{NODE_PREFIX}{node}')
+
+    def kinds(self, kind: str) -> list[Part]:
+        return [pt for pt in self.parts if pt.comp.kind == kind]
+
+    # ---- the stepper's view ---------------------------------------------------------------
+
+    def evaluate(self, t, x, u, p, dx, y) -> None:
+        """The compiled right-hand side and signals, called from Python."""
+        from .integrator import call
+        call(self.module.evaluate_c, t, x, u, p, dx, y)
+
+    def jacobian(self, t, x, u) -> np.ndarray:
+        """The compiled Jacobian ``df/dx`` at one point."""
+        from .integrator import call_jacobian
+        J = np.zeros((self.n_states, self.n_states))
+        call_jacobian(self.module.jacobian_c, float(t), np.array(x, dtype=float),
+                      np.ascontiguousarray(u, dtype=float), self.p, J,
+                      np.empty(self.n_signals))
+        return J
+
+    @property
+    def evaluate_c(self):
+        return self.module.evaluate_c
+
+    def structure(self) -> dict:
+        """What :mod:`hydropump_sim.integrator` needs besides ``evaluate_c``."""
+        return {'scale': self.state_scale, 'colors': self.colors, 'pattern': self.pattern,
+                'timed': self.dither > 0.0,
+                'dt_time': 1.0e-7 / max(self.dither, 1.0)}
+
+    def stepper_model(self, timed: bool | None = None) -> tuple:
+        """The stepper's view of this circuit (:func:`hydropump_sim.integrator.model`), with
+        its compiled Jacobian; ``timed=False`` drops the dither's time dependence (a
+        steady-state march)."""
+        from . import integrator
+        st = self.structure()
+        if timed is not None:
+            st['timed'] = timed
+        return integrator.model(self.module.evaluate_c, st,
+                                getattr(self.module, 'jacobian_c', None))
+
+    @property
+    def n_states(self) -> int:
+        return len(self.states)
+
+    @property
+    def n_signals(self) -> int:
+        return len(self.signals)
+
+    def rhs(self, t: float, x, u) -> tuple[np.ndarray, np.ndarray]:
+        """State derivative and signals at one point (for analysis, not the inner loop)."""
+        dx = np.empty(self.n_states)
+        y = np.empty(self.n_signals)
+        self.evaluate(float(t), np.ascontiguousarray(x, dtype=float),
+                      np.ascontiguousarray(u, dtype=float), self.p, dx, y)
+        return dx, y
+
+    def with_values(self, sets: Mapping[str, Any]) -> Circuit:
+        """The same circuit file with more ``--set`` values (recompiled only if the
+        structure changes)."""
+        return load_circuit(self.source, {**self.entries.get('__sets__', {}), **sets})
+
+
+def _unknown(name: str, names, what: str) -> str:
+    close = closest_name(name, names)
+    return f'{name}: unknown {what}' + (f' (did you mean {close}?)' if close else '')
+
+
+# ---- reading ---------------------------------------------------------------------------------
+
+def _resolve(value: Any, plant: dict | None, where: str, errors: list[str]) -> Any:
+    """A ``plant.<group>.<name>`` reference read from the plant params file."""
+    if isinstance(value, str) and value.startswith('plant.'):
+        if plant is None:
+            errors.append(f'{where} = {value}: the circuit names no plant params file '
+                          '(plant: FILE)')
+            return None
+        key = value[len('plant.'):]
+        if key not in plant:
+            errors.append(f'{where} = {value}: {_unknown(key, plant, "plant parameter")}')
+            return None
+        return plant[key]
+    return value
+
+
+def _split_sets(sets: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
+    out: dict[str, dict[str, Any]] = {}
+    for name, value in sets.items():
+        head, _, rest = str(name).partition('.')
+        out.setdefault(head, {})[rest] = value
+    return out
+
+
+def load_circuit(path: str | Path, sets: Mapping[str, Any] | None = None) -> Circuit:
+    """Read, check, lay out and compile a circuit file.
+
+    Parameters
+    ----------
+    path : str or Path
+    sets : mapping, optional
+        ``{'<component>.<parameter or input>': value, 'fluid.<name>': value}``: values
+        over the file's (``--set``); an input set here holds that value.
+
+    Raises
+    ------
+    CircuitError
+        One line per problem, naming the component and the port.
+    """
+    path = Path(path)
+    doc = read_yaml(path)
+    return build_circuit(doc, str(path), path.parent, dict(sets or {}))
+
+
+def build_circuit(doc: Any, source: str, base: Path, sets: dict[str, Any]) -> Circuit:
+    errors: list[str] = []
+    if not isinstance(doc, Mapping) or not isinstance(doc.get('components'), Mapping) \
+            or not doc['components']:
+        raise CircuitError(['expected a mapping with components: {name: {type: ..., ports: '
+                            '{...}, parameters}}'], source)
+    for key in doc:
+        if key not in _TOP:
+            errors.append(_unknown(str(key), _TOP, 'top-level key'))
+    by_comp = _split_sets(sets)
+    plant = None
+    if doc.get('plant') is not None:
+        plant_path = base / str(doc['plant'])
+        try:
+            plant = to_flat(load_params(plant_path))
+        except ParamError as exc:
+            raise CircuitError([f'plant: {plant_path}: {ln}' for ln in exc.lines],
+                               source) from None
+    # The fluid: the plant's, then the circuit file's, then --set fluid.*.
+    fluid_values = {k[len('fluid.'):]: v for k, v in (plant or {}).items()
+                    if k.startswith('fluid.')}
+    fluid_values.update(flatten(doc.get('fluid') or {}))
+    fluid_values.update(by_comp.pop('fluid', {}))
+    fluid = None
+    try:
+        fluid = build(Fluid, {k: _resolve(v, plant, f'fluid.{k}', errors)
+                              for k, v in fluid_values.items()}, source)
+    except ParamError as exc:
+        errors += [f'fluid.{ln}' for ln in exc.lines]
+    kinds = registry()
+    comps: list[Component] = []
+    composites: dict[str, Expansion] = {}
+    input_sets: dict[str, float] = {}
+    for name in by_comp:
+        if name not in doc['components']:
+            errors.append(_unknown(name, list(doc['components']) + ['fluid'], 'component')
+                          + ' in a set value')
+    pending = [(str(name), entry, None) for name, entry in doc['components'].items()]
+    while pending:
+        name, entry, parent = pending.pop(0)
+        comp = _make(name, entry, kinds, plant, by_comp.get(name, {}) if parent is None else {},
+                     fluid, input_sets, errors)
+        if comp is None:
+            continue
+        try:
+            exp = comp.expand()
+        except ParamError as exc:
+            errors += [f'{name}: {ln}' if not ln.startswith(name) else ln for ln in exc.lines]
+            continue
+        if exp is None:
+            comps.append(comp)
+            continue
+        composites[name] = exp
+        sub = by_comp.get(name, {}) if parent is None else {}
+        for alias, target in exp.inputs.items():
+            if alias in sub:
+                input_sets[target] = sub[alias]
+        pending = [(part_name, {'type': kind, 'ports': ports, **values}, name)
+                   for part_name, kind, values, ports in exp.parts] + pending
+    if errors:
+        raise CircuitError(errors, source)
+    circuit = _layout(comps, composites, fluid, source, doc.get('name') or Path(source).stem,
+                      errors)
+    for name, value in input_sets.items():
+        try:
+            k = circuit.inputs.index(name)
+        except ValueError:
+            errors.append(_unknown(name, circuit.inputs, 'input'))
+            continue
+        lo, hi = circuit.input_ranges[k]
+        if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                or not lo <= float(value) <= hi:
+            errors.append(f'{name} = {value!r}: expected a number in [{fmt(lo)}, {fmt(hi)}] '
+                          f'{circuit.input_units[k]}')
+            continue
+        circuit.u0[k] = float(value)
+    if errors:
+        raise CircuitError(errors, source)
+    circuit.entries['__sets__'] = dict(sets)
+    circuit.module = compile_module(circuit.code)
+    return circuit
+
+
+def _make(name: str, entry: Any, kinds: dict, plant: dict | None, sets: dict[str, Any],
+          fluid: Fluid | None, input_sets: dict[str, float], errors: list[str]
+          ) -> Component | None:
+    """One component from its entry (and its ``--set`` values), or ``None`` with errors."""
+    if not isinstance(entry, Mapping):
+        errors.append(f'{name}: expected a mapping with type, ports and parameters')
+        return None
+    kind = entry.get('type')
+    cls = kinds.get(kind)
+    if cls is None:
+        errors.append(f'{name}: ' + _unknown(str(kind), kinds, 'component type')
+                      .replace(f'{kind}: ', f'type {kind!r}: '))
+        return None
+    values = {k: _resolve(v, plant, f'{name}.{k}', errors)
+              for k, v in flatten({k: v for k, v in entry.items() if k not in _ENTRY}).items()}
+    # A set value naming an input holds that input (a composite's, through its parts);
+    # any other is a parameter.
+    input_names = {s.name for s in cls.INPUTS}
+    composite = cls.expand is not Component.expand
+    for key, value in sets.items():
+        if key not in input_names:
+            values[key] = value
+        elif not composite:
+            input_sets[f'{name}.{key}'] = value
+    if getattr(cls, 'PLANT_PARAMS', False):
+        if plant is None:
+            errors.append(f'{name}: a {kind} takes its parameters from the plant params file: '
+                          'name it (plant: FILE)')
+            return None
+        values = {**plant, **values}
+    try:
+        params = cls.build_params(values, None)
+    except ParamError as exc:
+        errors += [f'{name}.{ln}' for ln in exc.lines]
+        return None
+    ports = _ports(name, cls.PORTS, entry.get('ports'), errors)
+    if ports is None:
+        return None
+    return cls(name, params, ports, fluid)
+
+
+def _ports(name: str, specs: tuple[PortSpec, ...], given: Any, errors: list[str]
+           ) -> dict[str, list[str]] | None:
+    names = [s.name for s in specs]
+    if given is None:
+        given = {}
+    if not isinstance(given, Mapping):
+        errors.append(f'{name}: ports must map port names to nodes ({", ".join(names)})')
+        return None
+    out: dict[str, list[str]] = {}
+    ok = True
+    for key, node in given.items():
+        spec = next((s for s in specs if s.name == key), None)
+        if spec is None:
+            errors.append(f'{name}: no port {key!r} (ports: {", ".join(names)})')
+            ok = False
+            continue
+        nodes = node if isinstance(node, list) else [node]
+        if not nodes or not all(isinstance(n, str) and n for n in nodes) \
+                or (len(nodes) > 1 and not spec.many):
+            errors.append(f'{name}.{key}: expected a node name'
+                          + (' or a list of them' if spec.many else '') + f', got {node!r}')
+            ok = False
+            continue
+        out[key] = list(nodes)
+    for spec in specs:
+        if spec.name not in out and not spec.optional:
+            errors.append(f'{name}: port {spec.name} is not connected ({spec.desc})')
+            ok = False
+    return out if ok else None
+
+
+# ---- layout ----------------------------------------------------------------------------------
+
+def _layout(comps: list[Component], composites: dict[str, Expansion], fluid: Fluid,
+            source: str, name: str, errors: list[str]) -> Circuit:
+    nodes: list[str] = []
+    for comp in comps:
+        for spec in comp.PORTS:
+            for node in comp.ports.get(spec.name, []):
+                if node not in nodes:
+                    nodes.append(node)
+    index = {n: i for i, n in enumerate(nodes)}
+    # Who fixes a node, and the volume at each.
+    fixed: dict[str, tuple[str, str, str]] = {}
+    volume: dict[str, float] = {n: 0.0 for n in nodes}
+    for comp in comps:
+        fx = comp.fixed_pressure()
+        if fx is not None:
+            node = comp.ports[fx[0]][0]
+            if node in fixed:
+                errors.append(f'node {node}: its pressure is fixed by both {fixed[node][0]} and '
+                              f'{comp.name}; keep one')
+            else:
+                fixed[node] = (comp.name, fx[1], fx[2])
+        for port, v in comp.volumes().items():
+            for node in comp.ports.get(port, []):
+                volume[node] += v
+    users: dict[str, list[str]] = {n: [] for n in nodes}
+    for comp in comps:
+        for spec in comp.PORTS:
+            for node in comp.ports.get(spec.name, []):
+                users[node].append(f'{comp.name}.{spec.name}')
+    for node in nodes:
+        if node not in fixed and volume[node] <= 0.0:
+            errors.append(f'node {node} ({", ".join(users[node])}): no volume: its pressure '
+                          'needs one (a volume component, or a chamber of a cylinder or '
+                          'motor) or a component that fixes it (a tank)')
+    errors += _return_paths(comps, nodes, fixed, users)
+    if errors:
+        raise CircuitError(errors, source)
+    # States: components', then one pressure per node with a volume.
+    states, units, scales, integ = [], [], [], []
+    parts: list[Part] = []
+    inputs, in_units, in_ranges, u0 = [], [], [], []
+    signals = [f'{NODE_PREFIX}{n}' for n in nodes] + [f'{NODE_PREFIX}{n}.inflow' for n in nodes]
+    sig_units = ['Pa'] * len(nodes) + ['m^3/s'] * len(nodes)
+    p: list[float] = [float(getattr(fluid, k)) for k in FLUID_KEYS]
+    p += [volume[n] if n not in fixed else 0.0 for n in nodes]
+    for n, (cname, how, key) in fixed.items():
+        if how == 'param':
+            comp = next(c for c in comps if c.name == cname)
+            p[N_FLUID + index[n]] = float(getattr(comp.params, key))
+    dither = 0.0
+    for comp in comps:
+        sts = comp.states()
+        x0 = len(states)
+        for s in sts:
+            states.append(f'{comp.name}.{s.name}')
+            units.append(s.unit)
+            scales.append(s.scale)
+            integ.append(s.integrating)
+        k0 = len(inputs)
+        for s in comp.INPUTS:
+            inputs.append(f'{comp.name}.{s.name}')
+            in_units.append(s.unit)
+            in_ranges.append((s.lo, s.hi))
+            u0.append(comp.input_default(s))
+        y0 = len(signals)
+        for s in comp.SIGNALS:
+            signals.append(f'{comp.name}.{s.name}')
+            sig_units.append(s.unit)
+        block, used = _port_block(comp, index)
+        p0 = len(p)
+        p += block + [float(v) for v in comp.pack()]
+        parts.append(Part(comp, slice(x0, len(states)), slice(k0, len(inputs)),
+                          slice(y0, len(signals)), slice(p0, len(p)), used))
+        if comp.dither_frequency() > 0.0:
+            dither = max(dither, comp.dither_frequency())
+    node_states = {}
+    for n in nodes:
+        if n not in fixed:
+            node_states[n] = len(states)
+            states.append(f'{NODE_PREFIX}{n}')
+            units.append('Pa')
+            scales.append(1.0e6)
+            integ.append(False)
+    circuit = Circuit(
+        name=name, source=source, fluid=fluid, parts=parts, composites=composites,
+        nodes=nodes, fixed=fixed, volume={n: v for n, v in volume.items() if n not in fixed},
+        states=states, state_units=units, state_scale=np.array(scales, dtype=float),
+        integrating=np.array(integ, dtype=bool), inputs=inputs, input_units=in_units,
+        input_ranges=in_ranges, u0=np.array(u0, dtype=float), signals=signals,
+        signal_units=sig_units, p=np.array(p, dtype=float),
+        pattern=np.zeros((0, 0), bool), colors=np.zeros(0, np.int64), dither=dither,
+        code='')
+    # The state scales close the parameter vector: the Jacobian's difference steps.
+    circuit.scale_offset = circuit.p.size
+    circuit.p = np.concatenate([circuit.p, circuit.state_scale])
+    circuit.pattern = _pattern(circuit, node_states)
+    from .integrator import coloring
+    circuit.colors = coloring(circuit.pattern)
+    circuit.code = _generate(circuit, node_states, index)
+    return circuit
+
+
+def _port_block(comp: Component, index: dict[str, int]) -> tuple[list[float], list[int]]:
+    """The packed port indices of a component (a ``many`` port as its count, then its
+    nodes; an unconnected optional port as -1), and the nodes it reads."""
+    block: list[float] = []
+    used: list[int] = []
+    for spec in comp.PORTS:
+        nodes = comp.ports.get(spec.name, [])
+        if spec.many:
+            block.append(float(len(nodes)))
+        if not nodes:
+            block.append(-1.0)
+        for node in nodes:
+            block.append(float(index[node]))
+            used.append(index[node])
+    return block, used
+
+
+def _return_paths(comps: list[Component], nodes: list[str], fixed: dict, users: dict
+                  ) -> list[str]:
+    """Every node must reach a node of fixed pressure through components that carry flow
+    (else its oil has nowhere to go: a load with no return path)."""
+    adj: dict[str, set[str]] = {n: set() for n in nodes}
+    for comp in comps:
+        flow_nodes = [n for spec in comp.PORTS if not spec.sense
+                      for n in comp.ports.get(spec.name, [])]
+        if comp.EXTERNAL_RETURN:
+            flow_nodes.append('__load__')
+        for a in flow_nodes:
+            for b in flow_nodes:
+                if a != b and a in adj:
+                    adj[a].add(b)
+    reached = set(fixed) | {n for n in nodes if '__load__' in adj[n]}
+    todo = list(reached)
+    while todo:
+        n = todo.pop()
+        for m in adj.get(n, ()):
+            if m in adj and m not in reached:
+                reached.add(m)
+                todo.append(m)
+    return [f'node {n} ({", ".join(users[n])}): no return path to a tank or a pressure '
+            'source: the oil delivered there has nowhere to go' for n in nodes
+            if n not in reached]
+
+
+def _pattern(circuit: Circuit, node_states: dict[str, int]) -> np.ndarray:
+    """Which state derivatives may depend on which states: each part couples its own states
+    and the pressures of the nodes at its ports; each node its own pressure."""
+    n = circuit.n_states
+    pat = np.zeros((n, n), dtype=bool)
+    for i in range(n):
+        pat[i, i] = True
+    for part in circuit.parts:
+        idx = list(range(part.x.start, part.x.stop))
+        idx += [node_states[circuit.nodes[k]] for k in part.ports
+                if circuit.nodes[k] in node_states]
+        pat[np.ix_(idx, idx)] = True
+    return pat
+
+
+# ---- code ------------------------------------------------------------------------------------
+
+def _generate(circuit: Circuit, node_states: dict[str, int], index: dict[str, int]) -> str:
+    """The source of the circuit's ``evaluate`` (see the module)."""
+    n_nodes = len(circuit.nodes)
+    lines = [f'"""Generated by hydropump_sim.circuit for the structure of {circuit.name!r}: '
+             'do not edit."""', '', 'import numba', 'import numpy as np', '',
+             'from hydropump_sim.components.laws import continuity',
+             'from hydropump_sim.integrator import EVALUATE, JACOBIAN']
+    kernels: dict[str, str] = {}
+    for part in circuit.parts:
+        mod = type(part.comp).__module__
+        if mod not in kernels:
+            kernels[mod] = f'k_{len(kernels)}'
+            lines.append(f'from {mod} import kernel as {kernels[mod]}')
+    lines += ['', '', 'def evaluate(t, x, u, p, dx, y):',
+              f'    P = y[0:{n_nodes}]', f'    Q = y[{n_nodes}:{2 * n_nodes}]']
+    for i, node in enumerate(circuit.nodes):
+        if node in node_states:
+            lines.append(f'    P[{i}] = x[{node_states[node]}]')
+        else:
+            cname, how, key = circuit.fixed[node]
+            if how == 'param':
+                lines.append(f'    P[{i}] = p[{N_FLUID + i}]')
+            else:
+                k = circuit.inputs.index(f'{cname}.{key}')
+                lines.append(f'    P[{i}] = u[{k}]')
+        lines.append(f'    Q[{i}] = 0.0')
+    for part in circuit.parts:
+        k = kernels[type(part.comp).__module__]
+        lines.append(f'    {k}(t, x[{part.x.start}:{part.x.stop}], dx[{part.x.start}:'
+                     f'{part.x.stop}], u[{part.u.start}:{part.u.stop}], p[{part.p.start}:'
+                     f'{part.p.stop}], y[{part.y.start}:{part.y.stop}], P, Q)'
+                     f'  # {part.comp.name}')
+    fl = ', '.join(f'p[{k}]' for k in range(N_FLUID))
+    for node, k in node_states.items():
+        i = index[node]
+        lines.append(f'    dx[{k}] = continuity(P[{i}], Q[{i}], p[{N_FLUID + i}], {fl})'
+                     f'  # {node}')
+    # A component that fixes its node's pressure reports the net flow into it.
+    for node, (cname, _, _) in circuit.fixed.items():
+        part = next(pt for pt in circuit.parts if pt.comp.name == cname)
+        names = [s.name for s in part.comp.SIGNALS]
+        if 'flow' in names:
+            lines.append(f'    y[{part.y.start + names.index("flow")}] = Q[{index[node]}]')
+    lines += _generate_jacobian(circuit, node_states, index, kernels)
+    lines += ['', '', 'evaluate_c = numba.cfunc(EVALUATE, cache=True, nogil=True)(evaluate)',
+              'jacobian_c = numba.cfunc(JACOBIAN, cache=True, nogil=True)(jacobian)', '']
+    return '\n'.join(lines)
+
+
+def _generate_jacobian(circuit: Circuit, node_states: dict[str, int], index: dict[str, int],
+                       kernels: dict[str, str]) -> list[str]:
+    """The source of the circuit's ``jacobian(t, x, u, p, J, y)``: ``df/dx`` by forward
+    differences of each component's kernel alone, in the states it reads (its own and the
+    pressures at its ports), then of continuity at each node. A component's kernel runs
+    once per state it reads instead of the whole circuit once per colour."""
+    n, n_nodes = circuit.n_states, len(circuit.nodes)
+    sc = circuit.scale_offset
+    out = ['', '', 'def jacobian(t, x, u, p, J, y):',
+           f'    P = y[0:{n_nodes}]', f'    Q = y[{n_nodes}:{2 * n_nodes}]',
+           f'    e = np.empty({n})', f'    e2 = np.empty({n})',
+           f'    Jq = np.zeros(({n_nodes}, {n}))', f'    Qt = np.empty({n_nodes})',
+           '    J[:, :] = 0.0']
+    # The operating point: every node's pressure, every node's total inflow.
+    for i, node in enumerate(circuit.nodes):
+        if node in node_states:
+            out.append(f'    P[{i}] = x[{node_states[node]}]')
+        else:
+            cname, how, key = circuit.fixed[node]
+            src = f'p[{N_FLUID + i}]' if how == 'param' else \
+                f'u[{circuit.inputs.index(f"{cname}.{key}")}]'
+            out.append(f'    P[{i}] = {src}')
+        out.append(f'    Q[{i}] = 0.0')
+
+    def call(part, rates):
+        k = kernels[type(part.comp).__module__]
+        return (f'{k}(t, x[{part.x.start}:{part.x.stop}], {rates}[{part.x.start}:'
+                f'{part.x.stop}], u[{part.u.start}:{part.u.stop}], p[{part.p.start}:'
+                f'{part.p.stop}], y[{part.y.start}:{part.y.stop}], P, Q)')
+
+    for part in circuit.parts:
+        out.append(f'    {call(part, "e")}')
+    out.append(f'    for i in range({n_nodes}):')
+    out.append('        Qt[i] = Q[i]')
+    for part in circuit.parts:
+        ports = sorted(set(part.ports))
+        local = [(j, -1) for j in range(part.x.start, part.x.stop)]
+        local += [(node_states[circuit.nodes[i]], i) for i in ports
+                  if circuit.nodes[i] in node_states]
+        if not local:
+            continue
+        out.append(f'    # {part.comp.name}')
+        zero = '; '.join(f'Q[{i}] = 0.0' for i in ports) or 'pass'
+        out.append(f'    {zero}')
+        out.append(f'    {call(part, "e")}')
+        for i in ports:
+            out.append(f'    qb{i} = Q[{i}]')
+        pairs = ', '.join(f'({j}, {nd})' for j, nd in local)
+        out += [f'    for j, nd in ({pairs},):',
+                '        xj = x[j]',
+                f'        h = 1.0e-8 * max(abs(xj), p[{sc} + j])',
+                '        x[j] = xj + h',
+                '        if nd >= 0:',
+                '            P[nd] = x[j]',
+                f'        {zero}',
+                f'        {call(part, "e2")}',
+                '        x[j] = xj',
+                '        if nd >= 0:',
+                '            P[nd] = xj']
+        if part.x.stop > part.x.start:
+            out += [f'        for r in range({part.x.start}, {part.x.stop}):',
+                    '            J[r, j] = (e2[r] - e[r]) / h']
+        for i in ports:
+            out.append(f'        Jq[{i}, j] += (Q[{i}] - qb{i}) / h')
+    fl = ', '.join(f'p[{k}]' for k in range(N_FLUID))
+    for node, k in node_states.items():
+        i = index[node]
+        v = f'p[{N_FLUID + i}]'
+        out += [f'    # continuity at {node}',
+                f'    c0 = continuity(P[{i}], Qt[{i}], {v}, {fl})',
+                f'    hq = 1.0e-8 * max(abs(Qt[{i}]), 1.0e-4)',
+                f'    cq = (continuity(P[{i}], Qt[{i}] + hq, {v}, {fl}) - c0) / hq',
+                f'    hp = 1.0e-8 * max(abs(P[{i}]), 1.0e6)',
+                f'    cp = (continuity(P[{i}] + hp, Qt[{i}], {v}, {fl}) - c0) / hp',
+                f'    for j in range({n}):',
+                f'        J[{k}, j] = cq * Jq[{i}, j]',
+                f'    J[{k}, {k}] += cp']
+    return out
+
+
+def cache_dir() -> Path:
+    """Where generated circuit modules and their compiled code are kept."""
+    env = os.environ.get('HYDROPUMP_CACHE')
+    if env:
+        return Path(env)
+    xdg = os.environ.get('XDG_CACHE_HOME')
+    return (Path(xdg) if xdg else Path.home() / '.cache') / 'hydropump'
+
+
+_MODULES: dict[str, Any] = {}
+
+
+def compile_module(code: str):
+    """Import (compiling on first use, then from numba's cache) a generated module."""
+    digest = hashlib.sha256(code.encode()).hexdigest()[:20]
+    if digest in _MODULES:
+        return _MODULES[digest]
+    name = f'hydropump_circuit_{digest}'
+    for root in (cache_dir(), Path(tempfile.gettempdir()) / f'hydropump-cache-{os.getuid()}'):
+        folder = root / 'circuits'
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            path = folder / f'{name}.py'
+            if not path.is_file() or path.read_text() != code:
+                tmp = folder / f'.{name}.{os.getpid()}.tmp'
+                tmp.write_text(code)
+                os.replace(tmp, path)
+            break
+        except OSError:
+            continue
+    else:
+        raise CircuitError(['no writable folder for the compiled circuit: set '
+                            'HYDROPUMP_CACHE to one'])
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    _MODULES[digest] = module
+    return module

@@ -1,0 +1,58 @@
+"""Check valve from ``in`` to ``out``: closed below the cracking pressure difference, fully
+open from ``p_full`` on, never backwards:
+
+    s = clip((dp - p_crack) / (p_full - p_crack), 0, 1),   Q = C_d A s sqrt(2/rho) sroot(dp)
+"""
+
+from dataclasses import dataclass
+
+import numba
+
+from ..schema import fmt, spec
+from .base import Component, PortSpec, SignalSpec
+from .laws import clip01, sroot
+from .orifice import coefficient
+
+jit = numba.njit(cache=True, fastmath=False, nogil=True)
+
+
+@jit
+def kernel(t, x, dx, u, p, y, P, Q):
+    a, b = int(p[0]), int(p[1])
+    dp = P[a] - P[b]
+    s = clip01((dp - p[3]) / (p[4] - p[3]))
+    q = p[2] * s * sroot(dp, p[5]) if s > 0.0 else 0.0
+    Q[a] -= q
+    Q[b] += q
+    y[0] = q
+    y[1] = s
+
+
+@dataclass(frozen=True)
+class CheckParams:
+    A: float = spec('m^2', 'flow area fully open', 1.0e-10, 1.0e-1)
+    C_d: float = spec('-', 'discharge coefficient', 0.1, 1.0, default=0.65)
+    p_crack: float = spec('Pa', 'cracking pressure difference', 0.0, 1.0e7, default=1.0e5)
+    p_full: float = spec('Pa', 'pressure difference of full opening', 1.0e3, 1.0e7,
+                         default=3.0e5)
+    dp_cr: float = spec('Pa', 'laminar/turbulent transition', 0.0, 1.0e6, default=1.0e4)
+
+    def cross_checks(self):
+        if self.p_full <= self.p_crack:
+            return [f'p_full = {fmt(self.p_full)} Pa must exceed p_crack = '
+                    f'{fmt(self.p_crack)} Pa']
+        return []
+
+
+class CheckValve(Component):
+    kind = 'check_valve'
+    doc = 'check valve: opens from p_crack to p_full, no reverse flow'
+    Params = CheckParams
+    PORTS = (PortSpec('in', 'inlet'), PortSpec('out', 'outlet'))
+    SIGNALS = (SignalSpec('flow', 'm^3/s', 'flow in -> out'),
+               SignalSpec('opening', '-', 'opening 0..1'))
+    kernel = kernel
+
+    def pack(self):
+        r = self.params
+        return [coefficient(r.C_d, r.A, self.fluid.rho), r.p_crack, r.p_full, r.dp_cr]

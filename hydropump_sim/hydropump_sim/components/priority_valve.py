@@ -1,0 +1,84 @@
+"""Priority valve: serves its controlled-flow port ``cf`` (the priority load, a steering
+unit) first and sends the excess to ``ef`` (the loads on demand). One spool with two
+complementary edges, pushed toward ``ef`` by ``P_cf`` and back by the priority load's
+sensed pressure ``P_ls`` plus a spring ``dp_set``: it holds ``P_cf - P_ls`` at ``dp_set``,
+so the priority load's metering drop, and its flow, stay put while the others vary; when
+the supply falls short, the ``ef`` edge closes first.
+
+    y* = clip(1/2 + ((P_cf - P_ls) - dp_set) / p_band, 0, 1),   tau dy/dt = y* - y
+    Q_cf = k_cf (1 - y) sroot(max(P_in - P_cf, 0)),   Q_ef = k_ef y sroot(max(P_in - P_ef, 0))
+
+with ``k = C_d A sqrt(2/rho)`` of each edge fully open.
+"""
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from ..schema import spec
+from .base import Component, PortSpec, SignalSpec, StateSpec
+from .directional_valve import metering
+from .laws import balance, clip01, lag
+from .orifice import coefficient
+
+jit = numba.njit(cache=True, fastmath=False, nogil=True)
+
+
+@jit
+def kernel(t, x, dx, u, p, y, P, Q):
+    a, cf, ef, ls = int(p[0]), int(p[1]), int(p[2]), int(p[3])
+    k_cf, k_ef, dp_set, p_band, tau, dp_cr = p[4], p[5], p[6], p[7], p[8], p[9]
+    held = P[cf] - P[ls]
+    target = balance(held - dp_set, p_band)
+    if tau > 0.0:
+        dx[0] = lag(x[0], target, tau)
+        s = clip01(x[0])
+    else:
+        s = target
+    q_cf = metering(k_cf, 1.0 - s, P[a] - P[cf], dp_cr)
+    q_ef = metering(k_ef, s, P[a] - P[ef], dp_cr)
+    Q[a] -= q_cf + q_ef
+    Q[cf] += q_cf
+    Q[ef] += q_ef
+    y[0] = q_cf
+    y[1] = q_ef
+    y[2] = s
+    y[3] = held
+
+
+@dataclass(frozen=True)
+class PriorityParams:
+    A_cf: float = spec('m^2', 'area of the priority edge fully open', 1.0e-9, 1.0e-2)
+    A_ef: float = spec('m^2', 'area of the excess edge fully open', 1.0e-9, 1.0e-2)
+    dp_set: float = spec('Pa', "spring setting: the priority load's held drop", 1.0e4, 1.0e7)
+    p_band: float = spec('Pa', 'spring gradient over the stroke', 1.0e2, 1.0e6, default=2.0e4)
+    C_d: float = spec('-', 'discharge coefficient', 0.1, 1.0, default=0.65)
+    tau: float = spec('s', 'spool time constant; 0 = static', 0.0, 1.0, default=2.0e-3)
+    dp_cr: float = spec('Pa', 'laminar/turbulent transition', 0.0, 1.0e6, default=5.0e4)
+
+
+class PriorityValve(Component):
+    kind = 'priority_valve'
+    doc = 'priority valve: the cf port first, the excess to ef'
+    Params = PriorityParams
+    PORTS = (PortSpec('in', 'supply'), PortSpec('cf', 'controlled flow: the priority load'),
+             PortSpec('ef', 'excess flow: the loads on demand'),
+             PortSpec('ls', "the priority load's sensed pressure", sense=True))
+    SIGNALS = (SignalSpec('cf_flow', 'm^3/s', 'flow to the priority port'),
+               SignalSpec('ef_flow', 'm^3/s', 'flow to the excess port'),
+               SignalSpec('position', '-', 'spool: 0 all to cf, 1 cf throttled'),
+               SignalSpec('dp', 'Pa', 'P_cf - P_ls'))
+    kernel = kernel
+
+    def states(self):
+        return (StateSpec('spool', '-', 1.0),) if self.params.tau > 0.0 else ()
+
+    def pack(self):
+        r = self.params
+        rho = self.fluid.rho
+        return [coefficient(r.C_d, r.A_cf, rho), coefficient(r.C_d, r.A_ef, rho), r.dp_set,
+                r.p_band, r.tau, r.dp_cr]
+
+    def initial_state(self, P, u):
+        return np.array([0.5]) if self.params.tau > 0.0 else np.array([])
