@@ -19,7 +19,6 @@ Models (``p[P_MODEL]``):
 (:data:`evaluate_c`) for the stepper of :mod:`hydropump_sim.integrator`.
 """
 
-import numba
 import numpy as np
 
 from . import integrator as ig
@@ -47,6 +46,7 @@ from .components.pump import (
 )
 from .components.pump import state_scale as pump_scale
 from .components.relief import static_flow
+from .jitcache import cfunc, jit
 
 # What the plant modules (trim, linear, simulate) take from here besides the layouts below.
 __all__ = ['FINE', 'N_U', 'N_Y', 'P_DITHA', 'P_DPCRU', 'P_GAMMA', 'P_MUU', 'P_PATM', 'advance',
@@ -64,7 +64,6 @@ U_IS, U_PU, U_XI, U_FP, N_U = range(5)
 OK, FAIL_STEP, FAIL_NAN, FAIL_STEPS, FAIL_BUDGET = (ig.OK, ig.FAIL_STEP, ig.FAIL_NAN,
                                                     ig.FAIL_STEPS, ig.FAIL_BUDGET)
 
-jit = numba.njit(cache=True, fastmath=False, nogil=True)
 
 
 @jit
@@ -115,7 +114,7 @@ def _evaluate(t, x, u, p, dx, y):
 
 
 evaluate = jit(_evaluate)
-evaluate_c = numba.cfunc(ig.EVALUATE, cache=True, nogil=True)(_evaluate)
+evaluate_c = cfunc(ig.EVALUATE)(_evaluate)
 
 
 @jit

@@ -25,6 +25,8 @@ from .inputs import sample, Signal
 from .simulate import IntegrationError, IntegratorConfig, run_model, time_grid
 
 DEFAULT_CONFIG = IntegratorConfig()
+#: Offline circuit runs step free of the increments (IntegratorConfig.dense).
+OFFLINE_CONFIG = IntegratorConfig(dense=True)
 
 
 class CircuitTrimError(HydropumpError, ValueError):
@@ -120,7 +122,7 @@ def input_table(circuit: Circuit, t: np.ndarray, inputs: Mapping[str, Signal] | 
 def simulate_circuit(circuit: Circuit, duration: float,
                      inputs: Mapping[str, Signal] | None = None, *, x0=None,
                      dt_out: float = 1.0e-3, dt_max: float = 1.0e-3,
-                     config: IntegratorConfig = DEFAULT_CONFIG, rtol: float | None = None,
+                     config: IntegratorConfig = OFFLINE_CONFIG, rtol: float | None = None,
                      t0: float = 0.0) -> CircuitResult:
     """Simulate a circuit from its steady state at the initial inputs (or ``x0``).
 
@@ -135,7 +137,8 @@ def simulate_circuit(circuit: Circuit, duration: float,
     x0 : array_like, optional
         Initial state (``circuit.states``).
     dt_out, dt_max, config, rtol, t0
-        As :func:`hydropump_sim.simulate`.
+        As :func:`hydropump_sim.simulate`; by default steps are free of the increments
+        (``config.dense``).
     """
     n_out, decim, dt = time_grid(duration, dt_out, dt_max, len(circuit.inputs),
                                  circuit.n_signals + circuit.n_states)

@@ -20,10 +20,11 @@ What the stepper needs to know of a model besides its function is its *structure
 import math
 import warnings
 
-import numba
 from numba import types
 from numba.core.errors import NumbaExperimentalFeatureWarning
 import numpy as np
+
+from .jitcache import cfunc, inline, jit
 
 # Models are first-class functions to the stepper (numba calls the feature experimental; it
 # is what lets the stepper compile once for every model).
@@ -57,16 +58,19 @@ _C6[5, :5] = (8.083246795921522, -7.981132988064893, -31.52159432874371, 16.3193
 # Stiffly accurate: the solution is the 6th stage, the error estimate is k_6.
 _M = np.array([1.221224509226641, 6.019134481288629, 12.53708332932087, -0.687886036105895,
                1.0, 1.0])
+# Dense output of the same method (Hairer's RODAS): within a step of size h from x0 to x1,
+#   x(t + s h) = x0 + s (x1 - x0 + (1 - s) (c2 + s c3)),  c2 = sum D2_i k_i, c3 = sum D3_i k_i.
+_D2 = np.array([10.12623508344586, -7.487995877610167, -34.80091861555747, -7.992771707568823,
+                1.025137723295662])
+_D3 = np.array([-0.6762803392801253, 6.087714651680015, 16.43084320892478, 24.76722511418386,
+                -6.594389125716872])
 
 # Integration status codes.
 OK, FAIL_STEP, FAIL_NAN, FAIL_STEPS, FAIL_BUDGET = 0, 1, 2, 3, 4
 
-jit = numba.njit(cache=True, fastmath=False, nogil=True)
-# Helpers of the stepper, inlined into it (a call per stage costs about a fifth of a step).
-inline = numba.njit(cache=True, fastmath=False, nogil=True, inline='always')
 
 
-@numba.cfunc(JACOBIAN, cache=True, nogil=True)
+@cfunc(JACOBIAN)
 def no_jacobian(t, x, u, p, J, y):
     """The Jacobian of a model that has none of its own (differences of ``evaluate``)."""
 
@@ -145,8 +149,11 @@ def jacobian(f, t, x, u, p, f0, scale, J, work, ybuf, colors, pattern):
 
 @jit
 def lu_factor(A, piv):
-    """In-place LU with partial pivoting; returns False if singular."""
+    """In-place LU with partial pivoting; returns False if singular. Zeros of the pivot row
+    and of the multipliers are skipped (a circuit's matrix is sparse; the result is the
+    same to the last bit)."""
     n = A.shape[0]
+    cols = np.empty(n, dtype=np.int64)
     for k in range(n):
         m = k
         amax = abs(A[k, k])
@@ -162,11 +169,17 @@ def lu_factor(A, piv):
                 tmp = A[k, j]
                 A[k, j] = A[m, j]
                 A[m, j] = tmp
+        nc = 0
+        for j in range(k + 1, n):
+            if A[k, j] != 0.0:
+                cols[nc] = j
+                nc += 1
         for i in range(k + 1, n):
             A[i, k] /= A[k, k]
             fk = A[i, k]
             if fk != 0.0:
-                for j in range(k + 1, n):
+                for c in range(nc):
+                    j = cols[c]
                     A[i, j] -= fk * A[k, j]
     return True
 
@@ -252,7 +265,7 @@ def workspace(n, ny):
 
 
 @jit
-def rodas_step(m, t, X, u, P, h, rtol, Xnew, own_jacobian, ws):
+def rodas_step(m, t, X, u, P, h, rtol, Xnew, own_jacobian, ws, D):
     """One Rodas4 step of size ``h`` for every row of ``X`` (a copy of the state per row of
     packed parameters ``P``); returns the scaled error norm of row 0 (inf if not finite).
 
@@ -261,9 +274,11 @@ def rodas_step(m, t, X, u, P, h, rtol, Xnew, own_jacobian, ws):
     numerical differentiation: a sensitivity is a difference of rows). With
     ``own_jacobian`` each row uses its own Jacobian (the exact Rodas4 map of that row);
     otherwise they share row 0's factorised ``G`` and cost six right-hand sides a step.
-    ``ws`` is the work space of :func:`workspace`.
+    ``ws`` is the work space of :func:`workspace`; ``D`` (rows x 2 x n, or no rows) takes
+    each row's dense-output coefficients ``c2, c3``.
     """
     rows, n = X.shape
+    dense_out = D.shape[0] > 0
     f, scale = m[0], m[3]
     f0, ft, work, xs, ybuf, J, G, K, piv = ws
     err = 0.0
@@ -292,6 +307,15 @@ def rodas_step(m, t, X, u, P, h, rtol, Xnew, own_jacobian, ws):
             err = math.sqrt(err / n)
             if err > 1.0:
                 return err   # rejected: the other rows need not be computed
+        if dense_out:
+            for i in range(n):
+                c2 = 0.0
+                c3 = 0.0
+                for s in range(5):
+                    c2 += _D2[s] * K[s, i]
+                    c3 += _D3[s] * K[s, i]
+                D[r, 0, i] = c2
+                D[r, 1, i] = c3
     return err
 
 
@@ -307,6 +331,7 @@ def advance(m, t0, t1, X, u, P, h, rtol, h_min, max_steps, stats, own_jacobian, 
     rows, n = X.shape
     Xnew = np.empty((rows, n))
     ws = workspace(n, ny)
+    no_dense = np.empty((0, 2, n))
     t = t0
     h = min(h, t1 - t0)
     steps = 0
@@ -318,7 +343,7 @@ def advance(m, t0, t1, X, u, P, h, rtol, h_min, max_steps, stats, own_jacobian, 
         steps += 1
         last = t + h >= t1 - 1.0e-12 * max(abs(t1), 1.0)
         hs = t1 - t if last else h
-        err = rodas_step(m, t, X, u, P, hs, rtol, Xnew, own_jacobian, ws)
+        err = rodas_step(m, t, X, u, P, hs, rtol, Xnew, own_jacobian, ws, no_dense)
         if err <= 1.0:
             stats[0] += 1
             for r in range(rows):
@@ -378,4 +403,91 @@ def run(m, X0, t0, dt, U, P, rtol, h_min, max_steps, decim, Y, X, stats, max_tot
                 f(t + dt, x[r], U[kk], P[r], dx, Y[r, row])
                 X[r, row, :] = x[r]
             row += 1
+    return OK, n_inc
+
+
+@jit
+def run_dense(m, X0, t0, dt, U, P, rtol, h_min, max_steps, decim, Y, X, stats, max_total,
+              own_jacobian):
+    """:func:`run` with steps free of the increments: over every stretch of increments
+    whose inputs are equal the steps follow the error control alone (they land on the
+    stretch's end, where an input changes), and the outputs every ``decim`` increments come
+    from the method's dense output. Where the solution is smooth, a step spans many
+    outputs; ``max_steps`` bounds the steps per increment on average. Same arguments and
+    returns as :func:`run`."""
+    n_inc = U.shape[0]
+    rows, n = X0.shape
+    ny = Y.shape[2]
+    f = m[0]
+    x = X0.copy()
+    Xnew = np.empty((rows, n))
+    D = np.empty((rows, 2, n))
+    xs = np.empty(n)
+    dx = np.empty(n)
+    ws = workspace(n, ny)
+    for r in range(rows):
+        f(t0, x[r], U[0], P[r], dx, Y[r, 0])
+        X[r, 0, :] = x[r]
+    n_out = Y.shape[1] - 1
+    row = 1
+    h = dt
+    k = 0
+    while k < n_inc:
+        k_end = k + 1
+        while k_end < n_inc:
+            same = True
+            for j in range(U.shape[1]):
+                if U[k_end, j] != U[k, j]:
+                    same = False
+                    break
+            if not same:
+                break
+            k_end += 1
+        u = U[k]
+        t = t0 + k * dt
+        t1 = t0 + k_end * dt
+        steps = 0
+        last_rejected = False
+        while t < t1:
+            if steps >= max_steps * (k_end - k):
+                return FAIL_STEPS, k
+            steps += 1
+            last = t + h >= t1 - 1.0e-12 * max(abs(t1), 1.0)
+            hs = t1 - t if last else h
+            err = rodas_step(m, t, x, u, P, hs, rtol, Xnew, own_jacobian, ws, D)
+            if err <= 1.0:
+                stats[0] += 1
+                t_new = t1 if last else t + hs
+                # Outputs inside (t, t_new] from the dense output.
+                while row <= n_out and t0 + row * decim * dt <= t_new + 1.0e-12 * dt:
+                    kk = min(row * decim, n_inc - 1)
+                    s = (row * decim * dt + t0 - t) / hs
+                    if s > 1.0:
+                        s = 1.0
+                    for r in range(rows):
+                        for i in range(n):
+                            xs[i] = x[r, i] + s * (Xnew[r, i] - x[r, i] + (1.0 - s)
+                                                   * (D[r, 0, i] + s * D[r, 1, i]))
+                        f(t0 + row * decim * dt, xs, U[kk], P[r], dx, Y[r, row])
+                        X[r, row, :] = xs
+                    row += 1
+                for r in range(rows):
+                    for i in range(n):
+                        x[r, i] = Xnew[r, i]
+                t = t_new
+                fac = 0.9 * (max(err, 1.0e-10)) ** -0.25
+                fac = min(fac, 1.0) if last_rejected else min(fac, 5.0)
+                h_new = max(hs * max(fac, 0.2), h_min)
+                h = max(h_new, h) if last else h_new
+                last_rejected = False
+            else:
+                stats[1] += 1
+                fac = 0.1 if not math.isfinite(err) else max(0.9 * err ** -0.25, 0.1)
+                h = hs * fac
+                last_rejected = True
+                if h < h_min:
+                    return (FAIL_STEP if math.isfinite(err) else FAIL_NAN), k
+            if max_total > 0 and stats[0] + stats[1] > max_total:
+                return FAIL_BUDGET, k
+        k = k_end
     return OK, n_inc

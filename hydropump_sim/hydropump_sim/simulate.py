@@ -45,6 +45,10 @@ class IntegratorConfig:
     steps_per_second: float = 2.0e5
     #: Wall time [s] after which simulate() gives up.
     time_budget: float = 30.0
+    #: Steps free of the held-input increments, outputs from the dense output
+    #: (integrator.run_dense): faster where the solution is smooth; off, every increment
+    #: ends a step, as the simulator node steps.
+    dense: bool = False
 
 
 @dataclass
@@ -288,7 +292,8 @@ def run_model(model: tuple, X0, dt, U, P, rtol, config, decim, Y, X, stats, t0=0
     for r0 in range(0, n_out, rows):
         r1 = min(r0 + rows, n_out)
         k0, k1 = r0 * decim, r1 * decim
-        status, done = ig.run(model, x, t0 + k0 * dt, dt, U[k0:k1], P, rtol, config.h_min,
+        run = ig.run_dense if config.dense else ig.run
+        status, done = run(model, x, t0 + k0 * dt, dt, U[k0:k1], P, rtol, config.h_min,
                               config.max_steps, decim, Y[:, r0:r1 + 1], X[:, r0:r1 + 1], stats,
                               budget, own_jacobian)
         t_fail = (k0 + done) * dt

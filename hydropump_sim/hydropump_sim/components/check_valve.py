@@ -6,14 +6,11 @@ open from ``p_full`` on, never backwards:
 
 from dataclasses import dataclass
 
-import numba
-
+from ..jitcache import jit
 from ..schema import fmt, spec
 from .base import Component, PortSpec, SignalSpec
 from .laws import clip01, sroot
 from .orifice import coefficient
-
-jit = numba.njit(cache=True, fastmath=False, nogil=True)
 
 
 @jit

@@ -15,14 +15,12 @@ the piston is.
 from dataclasses import dataclass
 import math
 
-import numba
 import numpy as np
 
+from ..jitcache import jit
 from ..schema import fmt, spec
 from .base import Component, InputSpec, PortSpec, SignalSpec, StateSpec
 from .laws import stop_force
-
-jit = numba.njit(cache=True, fastmath=False, nogil=True)
 
 
 @jit

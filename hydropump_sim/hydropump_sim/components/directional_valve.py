@@ -16,15 +16,13 @@ sensed (``ls_from`` takes the signal elsewhere, e.g. the load behind a post comp
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
+from ..jitcache import jit
 from ..schema import spec
 from .base import Component, InputSpec, PortSpec, SignalSpec, StateSpec
 from .laws import clip01, lag, sroot
 from .orifice import coefficient
-
-jit = numba.njit(cache=True, fastmath=False, nogil=True)
 
 
 @jit

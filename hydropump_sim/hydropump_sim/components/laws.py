@@ -11,16 +11,14 @@
 
 import math
 
-import numba
-
-jit = numba.njit(cache=True, fastmath=False, nogil=True)
+from ..jitcache import jit
 
 
 @jit
 def sroot(dp, dp_cr):
     """Signed regularised square root: laminar below ``dp_cr``, ``sqrt`` above (I3)."""
     if dp_cr > 0.0:
-        return dp / (dp * dp + dp_cr * dp_cr) ** 0.25
+        return dp / math.sqrt(math.sqrt(dp * dp + dp_cr * dp_cr))
     return math.sqrt(dp) if dp > 0.0 else 0.0
 
 

@@ -18,15 +18,13 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-import numba
 import numpy as np
 
+from ..jitcache import jit
 from ..params import Params, params_from_dict
 from ..schema import build, spec
 from . import pump
 from .base import Component, InputSpec, PortSpec, SignalSpec
-
-jit = numba.njit(cache=True, fastmath=False, nogil=True)
 
 
 @jit

@@ -10,13 +10,11 @@ Chamber and hose volumes are lumped into the port nodes (``V_a``, ``V_b``).
 from dataclasses import dataclass
 import math
 
-import numba
 import numpy as np
 
+from ..jitcache import jit
 from ..schema import spec
 from .base import Component, InputSpec, PortSpec, SignalSpec, StateSpec
-
-jit = numba.njit(cache=True, fastmath=False, nogil=True)
 
 
 @jit

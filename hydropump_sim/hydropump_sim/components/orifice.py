@@ -10,13 +10,10 @@ smoothly. ``xi`` is the aperture, an input (0..1).
 from dataclasses import dataclass
 import math
 
-import numba
-
+from ..jitcache import jit
 from ..schema import spec
 from .base import Component, InputSpec, PortSpec, SignalSpec
 from .laws import sroot
-
-jit = numba.njit(cache=True, fastmath=False, nogil=True)
 
 
 @jit

@@ -9,13 +9,10 @@ turbulent for ``gamma_u = 2``, laminar for 1, with the laminar regularisation be
 
 from dataclasses import dataclass
 
-import numba
-
+from ..jitcache import jit
 from ..schema import spec
 from .base import Component, InputSpec, PortSpec, SignalSpec
 from .laws import groot
-
-jit = numba.njit(cache=True, fastmath=False, nogil=True)
 
 
 @jit

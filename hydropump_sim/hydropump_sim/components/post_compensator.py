@@ -9,15 +9,13 @@ and when the pump saturates every load slows in proportion.
     Q  = C_d A_max s sqrt(2/rho) sroot(max(P_in - P_out, 0))      (its check: no reverse flow)
 """
 
-import numba
 
+from ..jitcache import jit
 from .base import Component, PortSpec, SignalSpec
 from .directional_valve import metering
 from .laws import balance, clip01, lag
 from .orifice import coefficient
 from .pre_compensator import CompensatorParams, spool_start, spool_state
-
-jit = numba.njit(cache=True, fastmath=False, nogil=True)
 
 
 @jit

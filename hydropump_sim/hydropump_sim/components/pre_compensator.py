@@ -15,16 +15,14 @@ fully open).
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
+from ..jitcache import jit
 from ..schema import spec
 from .base import Component, PortSpec, SignalSpec, StateSpec
 from .directional_valve import metering
 from .laws import balance, clip01, lag
 from .orifice import coefficient
-
-jit = numba.njit(cache=True, fastmath=False, nogil=True)
 
 
 @jit

@@ -3,12 +3,9 @@ test rig's supply). Its signal ``flow`` is the net flow into it."""
 
 from dataclasses import dataclass
 
-import numba
-
+from ..jitcache import jit
 from ..schema import spec
 from .base import Component, InputSpec, PortSpec, SignalSpec
-
-jit = numba.njit(cache=True, fastmath=False, nogil=True)
 
 
 @jit

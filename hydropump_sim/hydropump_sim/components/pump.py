@@ -20,15 +20,13 @@ from dataclasses import dataclass
 import math
 from typing import Any
 
-import numba
 import numpy as np
 
+from ..jitcache import jit
 from ..params import Params, params_from_dict
 from ..schema import ParamError
 from .base import Component, InputSpec, PortSpec, SignalSpec, StateSpec
 from .laws import continuity, sroot, stop_force
-
-jit = numba.njit(cache=True, fastmath=False, nogil=True)
 
 FINE, SIMPLIFIED, SIMPLIFIED_KC = 0, 1, 2
 MODELS = {'fine': FINE, 'simplified': SIMPLIFIED, 'simplified_Kc': SIMPLIFIED_KC}

@@ -11,13 +11,10 @@ dynamics); with ``tau = 0`` it is ``s*`` itself, the static law of the paper's p
 from dataclasses import dataclass
 import math
 
-import numba
-
+from ..jitcache import jit
 from ..schema import fmt, spec
 from .base import Component, PortSpec, SignalSpec, StateSpec
 from .laws import clip01, lag
-
-jit = numba.njit(cache=True, fastmath=False, nogil=True)
 
 
 @jit

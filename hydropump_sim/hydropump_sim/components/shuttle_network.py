@@ -1,40 +1,42 @@
 """Shuttle-valve network of load sensing: the highest of its input pressures reaches the
-load-sensing line ``out`` (its volume ``V``, bled to ``tank``), as a cascade of shuttle
-valves delivers it:
+load-sensing line ``out`` (its volume ``V``, bled to ``tank``). Each input feeds the line
+through its own seat, which opens only toward the line, as the balls of a shuttle cascade
+do:
 
-    k = argmax_i P_in,i,     Q_k->out = k_s sroot(P_in,k - P_ls)   (both ways, the ball open)
+    Q_i = k_s sroot(P_in,i - P_ls)  for P_in,i > P_ls, else 0
     Q_bleed = k_b sroot(P_ls - P_tank)
 
-``P_ls`` is then the highest load pressure, less the drop the bleed flow makes across the
-shuttle passages; it falls to tank pressure when every load is idle.
+``P_ls`` is then the highest input pressure, less the drop the bleed flow makes across its
+seat; inputs below it are shut off; two equal inputs share the bleed flow (a ball in
+balance), and when the highest input falls the line follows through the bleed. It falls to
+tank pressure when every input is drained (every section idle).
 """
 
 from dataclasses import dataclass
 
-import numba
-
+from ..jitcache import jit
 from ..schema import spec
 from .base import Component, PortSpec, SignalSpec
 from .laws import sroot
 from .orifice import coefficient
-
-jit = numba.njit(cache=True, fastmath=False, nogil=True)
 
 
 @jit
 def kernel(t, x, dx, u, p, y, P, Q):
     out, tank, n = int(p[0]), int(p[1]), int(p[2])
     k, k_b, dp_cr = p[3 + n], p[4 + n], p[5 + n]
-    sel = int(p[3])
+    total = 0.0
     best = 0
-    for i in range(1, n):
+    for i in range(n):
         j = int(p[3 + i])
-        if P[j] > P[sel]:
-            sel = j
+        if P[j] > P[int(p[3 + best])]:
             best = i
-    q = k * sroot(P[sel] - P[out], dp_cr)
-    Q[sel] -= q
-    Q[out] += q
+        dp = P[j] - P[out]
+        if dp > 0.0:
+            q = k * sroot(dp, dp_cr)
+            Q[j] -= q
+            Q[out] += q
+            total += q
     q_b = 0.0
     if tank >= 0 and k_b > 0.0:
         q_b = k_b * sroot(P[out] - P[tank], dp_cr)
@@ -42,7 +44,7 @@ def kernel(t, x, dx, u, p, y, P, Q):
         Q[tank] += q_b
     y[0] = P[out]
     y[1] = best
-    y[2] = q
+    y[2] = total
     y[3] = q_b
 
 
@@ -65,7 +67,7 @@ class ShuttleNetwork(Component):
              PortSpec('in', 'the sensed load nodes', many=True))
     SIGNALS = (SignalSpec('pressure', 'Pa', 'load-sensing pressure P_LS'),
                SignalSpec('selected', '-', 'index of the highest input'),
-               SignalSpec('flow', 'm^3/s', 'flow from the selected input'),
+               SignalSpec('flow', 'm^3/s', 'flow from the inputs into the line'),
                SignalSpec('bleed', 'm^3/s', 'bleed flow to tank'))
     kernel = kernel
 

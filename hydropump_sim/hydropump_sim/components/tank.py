@@ -3,12 +3,9 @@ the net flow returning into it."""
 
 from dataclasses import dataclass
 
-import numba
-
+from ..jitcache import jit
 from ..schema import spec
 from .base import Component, PortSpec, SignalSpec
-
-jit = numba.njit(cache=True, fastmath=False, nogil=True)
 
 
 @jit

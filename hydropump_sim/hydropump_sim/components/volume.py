@@ -11,12 +11,9 @@ cavitation floor (components/laws.py).
 
 from dataclasses import dataclass
 
-import numba
-
+from ..jitcache import jit
 from ..schema import spec
 from .base import Component, PortSpec, SignalSpec
-
-jit = numba.njit(cache=True, fastmath=False, nogil=True)
 
 
 @jit
