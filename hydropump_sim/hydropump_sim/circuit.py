@@ -173,6 +173,46 @@ class Circuit:
             out += [f'{name}.{alias}' for alias in exp.inputs]
         return out
 
+    def pump(self) -> Part | None:
+        """The circuit's pump (electro-hydraulic or hydromechanical), if any."""
+        return next((pt for pt in self.parts if pt.comp.kind in ('pump', 'ls_pump')), None)
+
+    def measured(self) -> dict[str, str]:
+        """The suite's measured signals (``hydropump_sim.measure.SIGNALS`` names, plus
+        ``ls_pressure``) -> the circuit signal each is: the pump's, the load orifice's
+        (eq. 9), the shuttle network's load-sensing pressure."""
+        out: dict[str, str] = {}
+        pump = self.pump()
+        if pump is not None:
+            n = pump.comp.name
+            out.update(pump_flow=f'{n}.Q_p', line_flow=f'{n}.q_l', actuator_pressure=f'{n}.P_a',
+                       line_pressure=f'{n}.P_l', spool_position=f'{n}.x_c',
+                       actuator_position=f'{n}.x_a')
+            if pump.comp.kind == 'pump':
+                out['solenoid_current'] = f'{n}.current'
+        load = next((pt for pt in self.parts if pt.comp.kind == 'orifice_load'), None)
+        if load is not None:
+            out.update(load_flow=f'{load.comp.name}.flow',
+                       load_pressure=f'{load.comp.name}.load_pressure')
+        ls = next((pt for pt in self.parts if pt.comp.kind == 'shuttle_network'), None)
+        if ls is not None:
+            out['ls_pressure'] = f'{ls.comp.name}.pressure'
+        return out
+
+    def loads(self) -> dict[str, dict[str, str]]:
+        """Every load: a section (or a load orifice) -> its ``pressure``, ``flow``,
+        ``position``/``velocity`` or ``speed`` signals and its ``command`` input."""
+        out: dict[str, dict[str, str]] = {}
+        for name, exp in self.composites.items():
+            entry = {k: f'{name}.{k}' for k in exp.signals}
+            if 'command' in exp.inputs:
+                entry['command'] = f'{name}.command'
+            out[name] = entry
+        for pt in self.kinds('orifice_load'):
+            n = pt.comp.name
+            out[n] = {'pressure': f'{n}.load_pressure', 'flow': f'{n}.flow'}
+        return out
+
     def node_state(self, node: str) -> int:
         return self.states.index(f'{NODE_PREFIX}{node}')
 
@@ -378,7 +418,8 @@ def _make(name: str, entry: Any, kinds: dict, plant: dict | None, sets: dict[str
     if not isinstance(entry, Mapping):
         errors.append(f'{name}: expected a mapping with type, ports and parameters')
         return None
-    kind = entry.get('type')
+    sets = dict(sets)
+    kind = sets.pop('type', entry.get('type'))
     cls = kinds.get(kind)
     if cls is None:
         errors.append(f'{name}: ' + _unknown(str(kind), kinds, 'component type')

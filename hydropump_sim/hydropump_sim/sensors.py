@@ -199,11 +199,17 @@ class SensorChannel:
 
 
 class SensorBank:
-    """One :class:`SensorChannel` per signal of a profile, sharing one seeded generator."""
+    """One :class:`SensorChannel` per signal of a profile, sharing one seeded generator.
 
-    def __init__(self, profile: SensorProfile, dt: float):
+    ``like`` adds signals the profile does not name, each measured by a sensor of the kind
+    of a named one (a circuit's load-sensing pressure by a transducer like the line
+    pressure's), with noise of its own.
+    """
+
+    def __init__(self, profile: SensorProfile, dt: float, like: dict[str, str] | None = None):
         self.profile = profile
         self.dt = dt
+        self.like = dict(like or {})
         self.reset()
 
     def reset(self) -> None:
@@ -211,6 +217,9 @@ class SensorBank:
         self.channels = {sig: SensorChannel(self.profile.spec(sig), self.dt,
                                             np.random.default_rng([self.profile.seed, i]))
                          for i, sig in enumerate(SIGNALS)}
+        for i, (sig, kind) in enumerate(self.like.items(), len(SIGNALS)):
+            self.channels[sig] = SensorChannel(self.profile.spec(kind), self.dt,
+                                               np.random.default_rng([self.profile.seed, i]))
 
     def measure(self, true_values: Mapping[str, float]) -> dict[str, float]:
         """Measurements of this period for the given true values (SI)."""

@@ -10,9 +10,11 @@ The API is shaped for a thin ROS 2 node, as control_toolbox's ``Pid`` is for ros
 - ``state()`` is a flat dictionary for a ``~/state`` topic.
 
 Measurements (SI, as the simulator publishes them): ``line_flow``, ``pump_flow``, ``load_flow``
-[m^3/s]; ``line_pressure``, ``load_pressure``, ``actuator_pressure`` [Pa]; ``solenoid_current``
-[A]. Only the pressure difference ``line_pressure - load_pressure`` is used, so the pressures
-may be gauge or absolute as long as both are the same kind. A missing or non-finite value is
+[m^3/s]; ``line_pressure``, ``load_pressure``, ``ls_pressure``, ``actuator_pressure`` [Pa];
+``solenoid_current`` [A]. Only the pressure difference ``line_pressure - load_pressure`` is
+used, so the pressures may be gauge or absolute as long as both are the same kind; in a
+load-sensing circuit the load-sensing pressure ``ls_pressure`` (the highest load) takes the
+place of ``load_pressure``. A missing or non-finite value is
 skipped (the embedded model predicts through it); when the signals the mode needs stay invalid
 for ``limits.measurement_timeout`` the command ramps to ``limits.safe_current``.
 """
@@ -31,8 +33,17 @@ from .schema import ControllerConfig, MODES, specs
 
 MEASUREMENTS = {
     'line_flow': 'm^3/s', 'pump_flow': 'm^3/s', 'load_flow': 'm^3/s', 'line_pressure': 'Pa',
-    'load_pressure': 'Pa', 'actuator_pressure': 'Pa', 'solenoid_current': 'A',
+    'load_pressure': 'Pa', 'ls_pressure': 'Pa', 'actuator_pressure': 'Pa',
+    'solenoid_current': 'A',
 }
+
+
+def sensed_load(meas: Mapping[str, float]) -> Mapping[str, float]:
+    """The measurements with the load-sensing pressure as the load pressure wherever a
+    circuit has one: margin mode then regulates ``P_l - P_LS``, the highest load's."""
+    if finite_value(meas, 'ls_pressure') is None:
+        return meas
+    return {**meas, 'load_pressure': meas['ls_pressure']}
 
 
 def finite_value(meas: Mapping[str, float] | None, name: str) -> float | None:
@@ -182,7 +193,7 @@ class Controller:
         self._t_valid = None
         self._t_mode = None
         self._fault = False
-        self._reset(u, meas or {})
+        self._reset(u, sensed_load(meas or {}))
 
     def update(self, t: float, dt: float, meas: Mapping[str, float]) -> float:
         """One controller step: read ``meas`` (SI), return the absolute current command [A].
@@ -199,6 +210,7 @@ class Controller:
         """
         if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0.0):
             return self._command
+        meas = sensed_load(meas)
         t = float(t)
         self._t_last = t
         self._observe(dt, meas)

@@ -134,6 +134,17 @@ def line_estimator_gains(alpha: float, gamma: float, p1: float, p2: float
     return l_p, l_k
 
 
+def compensated_estimator_gains(C_l: float, T: float, p1: float, p2: float
+                                ) -> tuple[float, float]:
+    """Predictor-form gains ``(l_p, l_q)`` of the margin and load-flow estimator against
+    compensated loads: ``dp+ = dp + T/C_l (q - q_load)``, ``q_load+ = q_load``, measured
+    ``dp``; the gains place ``eig(Phi - L C)`` at ``p1, p2`` (``l_p`` on the margin error in
+    Pa, ``l_q`` in m^3/s per Pa)."""
+    l_p = 2.0 - p1 - p2
+    l_q = -(1.0 - p1) * (1.0 - p2) * C_l / T
+    return l_p, l_q
+
+
 # --- linear analysis ------------------------------------------------------------------------
 
 def emc_flow_lti(cfg: ControllerConfig, branch: str = 'up') -> control.StateSpace:

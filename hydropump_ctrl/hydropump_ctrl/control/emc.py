@@ -7,7 +7,10 @@ The structure, in the terms of EMC:
   a random-walk **disturbance** ``d`` [m^3/s] at the command that collects what the model
   leaves out (gain and shaft-speed errors, leakage, friction), and the known measurement
   **delay** ``t_d`` as a delay line of ``N`` commands. For the margin, the line of eq. 9 with
-  the load conductance ``k = mu_u xi_u`` as a second random-walk disturbance.
+  the load conductance ``k = mu_u xi_u`` as a second random-walk disturbance; against the
+  compensated sections of a load-sensing circuit (``model.load_law: compensated``), whose
+  flow does not depend on the margin, the line is an integrator ``C_l d(dp)/dt = q -
+  q_load`` and the load flow ``q_load`` [m^3/s] is the random walk.
 - **Noise estimator**: static gains on the model error (flow: delayed sample against the
   delayed model; margin: the undelayed pressure difference). The flow estimator runs on the
   delayed time axis, and a predictor rolls the corrected model forward over the ``N`` stored
@@ -30,7 +33,7 @@ from collections.abc import Mapping
 import math
 
 from .base import Controller, finite_value
-from .design import emc_gains, line_estimator_gains
+from .design import compensated_estimator_gains, emc_gains, line_estimator_gains
 from .embedded import LineModel, PumpModel, trajectory_step
 from .schema import ControllerConfig
 
@@ -64,6 +67,7 @@ class EMCController(Controller):
     def _configure(self, cfg: ControllerConfig) -> None:
         self._pump = PumpModel.from_config(cfg.model)
         self._line = LineModel.from_config(cfg.model)
+        self._compensated = cfg.model.load_law == 'compensated'
         self._gains = emc_gains(cfg)
         self._use_line_flow = cfg.controller.flow_signal == 'line_flow'
         if hasattr(self, '_hist') and len(self._hist) != self._gains.N + 1:
@@ -123,6 +127,7 @@ class EMCController(Controller):
         self._dp = self._dpr = max(dp, DP_FLOOR)
         self._pu = p_u
         self._q_line = Q
+        self._q_load = Q
         self._lnk = math.log(max(Q, Q_FLOOR) / self._dp ** (1.0 / self._line.gamma_u))
         e = 1.0 / self._line.gamma_u
         self._lnk_min = math.log(Q_FLOOR / DP_MAX ** e)
@@ -159,7 +164,15 @@ class EMCController(Controller):
             if self._pu is not None:
                 self._dp = max(self._dp - (p_u - self._pu), DP_FLOOR)
             self._pu = p_u
-        if p_l is not None and p_u is not None:
+        if p_l is not None and p_u is not None and self._compensated:
+            # Compensated loads: C_l d(dp)/dt = q - q_load, the load flow a random walk;
+            # predictor-form gains place the estimator's eigenvalues (design.py).
+            l_p, l_q = compensated_estimator_gains(self._line.C_l, dt, g.poles['line_fast'],
+                                                   g.poles['line_slow'])
+            e = p_l - p_u - self._dp
+            self._q_load = min(max(self._q_load + l_q * e, 0.0), self._pump.Q_max)
+            self._line_corr = l_p * e / self._dp
+        elif p_l is not None and p_u is not None:
             gamma = self._line.gamma_u
             e_rel = (p_l - p_u - self._dp) / self._dp
             alpha = self._line.alpha(self._dp, self._q_line, dt)
@@ -178,8 +191,15 @@ class EMCController(Controller):
         if self.mode == 'margin':
             a = math.exp(-dt / self._cfg.emc.tau_margin_reference)
             self._dpr = self._refs['margin'] + (self._dpr - self._refs['margin']) * a
-            # Cancelling the load conductance makes the margin loop the same at any aperture.
-            r = self._line.flow(self._dpr, math.exp(self._lnk))
+            if self._compensated:
+                # The loads' flow, and the line capacitance filled or drained toward the
+                # margin trajectory.
+                r = self._q_load + (self._line.C_l * (self._dpr - self._dp)
+                                    / self._cfg.emc.tau_margin_loop)
+            else:
+                # Cancelling the load conductance makes the margin loop the same at any
+                # aperture.
+                r = self._line.flow(self._dpr, math.exp(self._lnk))
             k_r = g.k_r_margin
         else:
             r = self._refs['flow']
@@ -203,8 +223,11 @@ class EMCController(Controller):
         target = v + self._dm
         # Line inflow over the next period, with the pilot flow of eq. 17 for falling flow.
         q_line = pump.line_flow(self._Qhat, target)
-        self._dp = max(self._line.step(self._dp, q_line, math.exp(self._lnk), dt)
-                       + self._line_corr * self._dp, DP_FLOOR)
+        if self._compensated:
+            dp = self._dp + dt * (q_line - self._q_load) / self._line.C_l
+        else:
+            dp = self._line.step(self._dp, q_line, math.exp(self._lnk), dt)
+        self._dp = max(dp + self._line_corr * self._dp, DP_FLOOR)
         self._q_line = q_line
         if self._used_law:
             self._Qr = self._Qr_next
@@ -242,4 +265,5 @@ class EMCController(Controller):
             'flow_estimate': q, 'flow_trajectory': self._Qr, 'flow_target': self._r,
             'disturbance': self._ds, 'margin_estimate': self._dp,
             'margin_trajectory': self._dpr, 'load_conductance': math.exp(self._lnk),
+            'load_flow_estimate': self._q_load,
         }

@@ -118,6 +118,10 @@ class Model:
                                  '(eq. 10)', 1.0e-7, 1.0e-2)
     C_l: float = spec('m^3/Pa', 'line capacitance V_l/beta (eq. 9)', 1.0e-16, 1.0e-8)
     gamma_u: float = spec('-', 'load law exponent of eq. 9', 1.0, 2.0)
+    load_law: str = spec('-', 'what the margin loop sees downstream: orifice (eq. 9, the '
+                         "paper's load: its flow grows with the margin) or compensated (a "
+                         "load-sensing circuit's compensated sections: their flow does not)",
+                         choices=('orifice', 'compensated'), default='orifice')
 
 
 @dataclass(frozen=True)
@@ -149,6 +153,10 @@ class Emc:
                                 'conductance)', 1.0e-3, 5.0, default=0.005, live=True)
     tau_line_slow: float = spec('s', 'slower line-estimator eigenvalue (margin and load '
                                 'conductance)', 1.0e-3, 5.0, default=0.008, live=True)
+    tau_margin_loop: float = spec('s', 'margin eigenvalue against compensated loads '
+                                  '(model.load_law compensated): the line capacitance is '
+                                  'filled or drained toward the margin trajectory at this rate',
+                                  1.0e-3, 5.0, default=0.08, live=True)
 
 
 def _pi_fields(unit_e: str, what: str, p: float, i: float, ff: float, ref_tau: float,

@@ -156,6 +156,12 @@ class Component:
         port's node (a tank, a pressure source)."""
         return None
 
+    def static_values(self) -> dict[str, Any] | None:
+        """Parameter values that make this component's dynamics static (singular
+        perturbation, section IV): a lag set to zero, the pump's simplified model; ``None``
+        if it has none to remove."""
+        return None
+
     def dither_frequency(self) -> float:
         """Frequency [Hz] of a time dependence within a held increment (0: none)."""
         return 0.0

@@ -93,6 +93,10 @@ class DirectionalValve(Component):
                SignalSpec('dp', 'Pa', 'metering pressure drop'))
     kernel = kernel
 
+    def static_values(self):
+        """Its lag off: the opening follows its target at once."""
+        return {'tau': 0.0}
+
     def states(self):
         return (StateSpec('spool', '-', 1.0),) if self.params.tau > 0.0 else ()
 

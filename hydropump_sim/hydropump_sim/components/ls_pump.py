@@ -42,7 +42,7 @@ def kernel(t, x, dx, u, p, y, P, Q):
 class LsSpool:
     margin: float = spec('Pa', 'margin P_l - P_LS the compensator holds', 1.0e5, 1.0e7)
     A_ls: float = spec('m^2', 'compensator spool area', 1.0e-7, 1.0e-3, default=2.0e-5)
-    K_ls: float = spec('N/m', 'compensator spool spring stiffness', 10.0, 1.0e7, default=5.0e4)
+    K_ls: float = spec('N/m', 'compensator spool spring stiffness', 10.0, 1.0e7, default=3.0e3)
 
 
 @dataclass(frozen=True)

@@ -69,6 +69,10 @@ class PriorityValve(Component):
                SignalSpec('dp', 'Pa', 'P_cf - P_ls'))
     kernel = kernel
 
+    def static_values(self):
+        """Its lag off: the opening follows its target at once."""
+        return {'tau': 0.0}
+
     def states(self):
         return (StateSpec('spool', '-', 1.0),) if self.params.tau > 0.0 else ()
 

@@ -279,8 +279,8 @@ def state_scale(p, n):
 
 # ---- the circuit component ---------------------------------------------------------------
 
-# The component's packed vector: the node of port ``out``, then the pump's ``P_*`` layout.
-C_OUT, C_P = 0, 1
+# The component's packed vector: the nodes of its ports (out, ls), then the pump's ``P_*`` layout.
+C_OUT, C_P = 0, 2
 # Its inputs: the absolute solenoid current [A] and the shaft frequency [Hz].
 U_CURRENT, U_SPEED = 0, 1
 
@@ -320,7 +320,10 @@ SIGNAL_UNITS = (('current', 'A', 'solenoid current I_s (eq. 2)'),
 class Pump(Component):
     kind = 'pump'
     doc = "the paper's pump, eqs. 1-8, parameters from a plant params file"
-    PORTS = (PortSpec('out', 'pump outlet: the line'),)
+    PORTS = (PortSpec('out', 'pump outlet: the line'),
+             PortSpec('ls', 'load-sensing line, unused by this pump (the hydromechanical '
+                      'ls_pump reads it): a circuit can switch type and keep its ports',
+                      optional=True, sense=True))
     INPUTS = (InputSpec('current', 'A', 'solenoid current command (clamped to eq. 2)',
                         0.0, 10.0, 'I_nominal'),
               InputSpec('shaft_speed', 'Hz', 'shaft frequency', 1.0, 100.0, 'f_p'))
@@ -354,6 +357,11 @@ class Pump(Component):
 
     def pack(self):
         return list(pack(self.params.plant, self.params.model))
+
+    def static_values(self):
+        """Eq. 10: the spool and the plate's inertia quasi-static (the paper's simplified
+        model, keeping K_c)."""
+        return {'model': 'simplified_Kc'}
 
     def dither_frequency(self):
         inp = self.params.plant.input
