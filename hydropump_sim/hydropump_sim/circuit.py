@@ -49,7 +49,7 @@ from .components import registry
 from .components.base import Component, Expansion, PortSpec
 from .errors import HydropumpError
 from .jitcache import DIGEST
-from .params import Fluid, load_params
+from .params import Fluid, load_params, Params
 from .schema import build, closest_name, flatten, fmt, ParamError, read_yaml, to_flat
 
 
@@ -275,7 +275,8 @@ class Circuit:
     def with_values(self, sets: Mapping[str, Any]) -> Circuit:
         """The same circuit file with more ``--set`` values (recompiled only if the
         structure changes)."""
-        return load_circuit(self.source, {**self.entries.get('__sets__', {}), **sets})
+        return load_circuit(self.source, {**self.entries.get('__sets__', {}), **sets},
+                            self.entries.get('__plant__'))
 
 
 def _unknown(name: str, names, what: str) -> str:
@@ -308,7 +309,8 @@ def _split_sets(sets: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
     return out
 
 
-def load_circuit(path: str | Path, sets: Mapping[str, Any] | None = None) -> Circuit:
+def load_circuit(path: str | Path, sets: Mapping[str, Any] | None = None,
+                 plant: str | Path | Params | None = None) -> Circuit:
     """Read, check, lay out and compile a circuit file.
 
     Parameters
@@ -317,6 +319,9 @@ def load_circuit(path: str | Path, sets: Mapping[str, Any] | None = None) -> Cir
     sets : mapping, optional
         ``{'<component>.<parameter or input>': value, 'fluid.<name>': value}``: values
         over the file's (``--set``); an input set here holds that value.
+    plant : path or Params, optional
+        The plant parameters in place of the file's ``plant:`` (a user's own pump, a
+        calibrated one, the bench's dither laid over them).
 
     Raises
     ------
@@ -324,11 +329,15 @@ def load_circuit(path: str | Path, sets: Mapping[str, Any] | None = None) -> Cir
         One line per problem, naming the component and the port.
     """
     path = Path(path)
-    doc = read_yaml(path)
-    return build_circuit(doc, str(path), path.parent, dict(sets or {}))
+    try:
+        doc = read_yaml(path)
+    except ParamError as exc:
+        raise CircuitError(exc.lines, str(path)) from None
+    return build_circuit(doc, str(path), path.parent, dict(sets or {}), plant)
 
 
-def build_circuit(doc: Any, source: str, base: Path, sets: dict[str, Any]) -> Circuit:
+def build_circuit(doc: Any, source: str, base: Path, sets: dict[str, Any],
+                  plant_over: str | Path | Params | None = None) -> Circuit:
     errors: list[str] = []
     if not isinstance(doc, Mapping) or not isinstance(doc.get('components'), Mapping) \
             or not doc['components']:
@@ -339,8 +348,10 @@ def build_circuit(doc: Any, source: str, base: Path, sets: dict[str, Any]) -> Ci
             errors.append(_unknown(str(key), _TOP, 'top-level key'))
     by_comp = _split_sets(sets)
     plant = None
-    if doc.get('plant') is not None:
-        plant_path = base / str(doc['plant'])
+    if isinstance(plant_over, Params):
+        plant = to_flat(plant_over)
+    elif plant_over is not None or doc.get('plant') is not None:
+        plant_path = Path(plant_over) if plant_over is not None else base / str(doc['plant'])
         try:
             plant = to_flat(load_params(plant_path))
         except ParamError as exc:
@@ -407,6 +418,7 @@ def build_circuit(doc: Any, source: str, base: Path, sets: dict[str, Any]) -> Ci
     if errors:
         raise CircuitError(errors, source)
     circuit.entries['__sets__'] = dict(sets)
+    circuit.entries['__plant__'] = plant_over
     circuit.module = compile_module(circuit.code)
     return circuit
 

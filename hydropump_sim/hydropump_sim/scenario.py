@@ -21,7 +21,7 @@ interpolation) as ``[t, value]`` pairs, or ``offset``, plus an optional ``sine``
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass, field
 import math
 from pathlib import Path
@@ -32,7 +32,7 @@ import numpy as np
 from .errors import HydropumpError
 from .inputs import held
 from .params import check_input, default_params_path, INPUTS, load_params, Params
-from .schema import ParamError, read_yaml
+from .schema import ParamError, read_yaml, unknown_key_line
 
 SIGNALS = {
     'current': ('A', 'absolute solenoid current'),
@@ -149,17 +149,21 @@ def parse_signal(spec: Any, name: str, errors: list[str]) -> Signal | None:
     return Signal(kind=kind, points=points, offset=offset, sine=sine)
 
 
-def parse_inputs(data: Any, errors: list[str]) -> dict[str, Signal]:
-    """Parse the ``inputs`` mapping of a scenario."""
+def parse_inputs(data: Any, errors: list[str], names: Collection[str] | None = None
+                 ) -> dict[str, Signal]:
+    """Parse the ``inputs`` mapping of a scenario; ``names``: the inputs accepted (default
+    the pump's; a circuit adds its own, ``boom.command``)."""
     if data is None:
         return {}
     if not isinstance(data, Mapping):
         errors.append('inputs: expected a mapping of signals')
         return {}
+    names = list(SIGNALS) if names is None else list(names)
     out = {}
     for name, spec in data.items():
-        if name not in SIGNALS:
-            errors.append(f'inputs.{name}: unknown signal (use {", ".join(SIGNALS)})')
+        if name not in names:
+            errors.append(unknown_key_line(f'inputs.{name}', [f'inputs.{n}' for n in names],
+                                           'input'))
             continue
         sig = parse_signal(spec, name, errors)
         if sig is not None:
@@ -184,8 +188,9 @@ def check_signals(inputs: dict[str, Signal], duration: float) -> list[str]:
     return out
 
 
-def load_scenario(path: str | Path) -> Scenario:
-    """Read and validate a scenario file.
+def load_scenario(path: str | Path, names: Collection[str] | None = None) -> Scenario:
+    """Read and validate a scenario file (``names``: the inputs accepted, see
+    :func:`parse_inputs`).
 
     Raises
     ------
@@ -213,7 +218,7 @@ def load_scenario(path: str | Path) -> Scenario:
     model = doc.get('model', 'fine')
     if model not in ('fine', 'simplified', 'simplified_Kc'):
         errors.append(f'model = {model!r}: use fine, simplified or simplified_Kc')
-    inputs = parse_inputs(doc.get('inputs'), errors)
+    inputs = parse_inputs(doc.get('inputs'), errors, names)
     if duration is not None and duration > 0:
         errors += check_signals(inputs, duration)
     params = None

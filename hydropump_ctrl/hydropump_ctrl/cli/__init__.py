@@ -3,6 +3,7 @@
 One module per group of sub-commands:
 
 - :mod:`.plant` - ``analyze``, ``simulate``;
+- :mod:`.circuit` - ``circuit`` (a circuit file: simulation, the paper's method);
 - :mod:`.fit` - ``fit`` (identification from bags);
 - :mod:`.calibrate` - ``calibrate``, ``validate`` (the plant model fitted to bags);
 - :mod:`.control` - ``design``, ``closed-loop``;
@@ -24,11 +25,11 @@ import sys
 
 from hydropump_sim.errors import HydropumpError
 
-from . import calibrate, control, fit, plant, record
+from . import calibrate, circuit, control, fit, plant, record
 
 # Each adds its sub-commands; a command's ``func(args)`` returns the exit code.
-COMMANDS = (plant.register, fit.register, calibrate.register, control.register,
-            record.register)
+COMMANDS = (plant.register, circuit.register, fit.register, calibrate.register,
+            control.register, record.register)
 
 __all__ = ['COMMANDS', 'build_parser', 'main']
 
