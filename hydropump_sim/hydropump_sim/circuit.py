@@ -279,6 +279,12 @@ class Circuit:
                             self.entries.get('__plant__'))
 
 
+def default_circuit_path() -> Path:
+    """``config/circuits/paper.yaml`` beside the default plant file: the paper's plant."""
+    from .params import default_params_path
+    return default_params_path().parent / 'circuits' / 'paper.yaml'
+
+
 def _unknown(name: str, names, what: str) -> str:
     close = closest_name(name, names)
     return f'{name}: unknown {what}' + (f' (did you mean {close}?)' if close else '')
@@ -310,7 +316,7 @@ def _split_sets(sets: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
 
 
 def load_circuit(path: str | Path, sets: Mapping[str, Any] | None = None,
-                 plant: str | Path | Params | None = None) -> Circuit:
+                 plant: str | Path | Params | None = None, compile: bool = True) -> Circuit:
     """Read, check, lay out and compile a circuit file.
 
     Parameters
@@ -322,6 +328,8 @@ def load_circuit(path: str | Path, sets: Mapping[str, Any] | None = None,
     plant : path or Params, optional
         The plant parameters in place of the file's ``plant:`` (a user's own pump, a
         calibrated one, the bench's dither laid over them).
+    compile : bool
+        ``False`` checks and lays out only (its names, its topics), without compiling.
 
     Raises
     ------
@@ -333,11 +341,12 @@ def load_circuit(path: str | Path, sets: Mapping[str, Any] | None = None,
         doc = read_yaml(path)
     except ParamError as exc:
         raise CircuitError(exc.lines, str(path)) from None
-    return build_circuit(doc, str(path), path.parent, dict(sets or {}), plant)
+    return build_circuit(doc, str(path), path.parent, dict(sets or {}), plant, compile)
 
 
 def build_circuit(doc: Any, source: str, base: Path, sets: dict[str, Any],
-                  plant_over: str | Path | Params | None = None) -> Circuit:
+                  plant_over: str | Path | Params | None = None,
+                  compile: bool = True) -> Circuit:
     errors: list[str] = []
     if not isinstance(doc, Mapping) or not isinstance(doc.get('components'), Mapping) \
             or not doc['components']:
@@ -419,7 +428,8 @@ def build_circuit(doc: Any, source: str, base: Path, sets: dict[str, Any],
         raise CircuitError(errors, source)
     circuit.entries['__sets__'] = dict(sets)
     circuit.entries['__plant__'] = plant_over
-    circuit.module = compile_module(circuit.code)
+    if compile:
+        circuit.module = compile_module(circuit.code)
     return circuit
 
 

@@ -30,7 +30,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Callable, Mapping
 import dataclasses
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 import math
 import threading
 import time
@@ -58,11 +58,14 @@ class SimulatorConfig:
     """The simulator node's own parameters (the plant and the sensors have their schemas)."""
 
     params_file: str = spec('path', 'plant params file; empty = config/pump.yaml', default='')
+    circuit_file: str = spec('path', 'circuit the pump feeds (config/circuits/*.yaml), its plant '
+                             "the params file; empty = config/circuits/paper.yaml, the paper's "
+                             'load', default='')
     sensor_profile: str = spec('path', 'sensor profile file (e.g. config/bench.yaml); empty = '
                                'ideal sensors', default='')
-    scenario_file: str = spec('path', 'load pressure, aperture and shaft speed scheduled in '
-                              'simulation time (hydropump simulate format); empty = none',
-                              default='')
+    scenario_file: str = spec('path', 'inputs scheduled in simulation time (hydropump simulate '
+                              "format): load pressure, aperture, shaft speed, a circuit's own "
+                              '(boom.command); empty = none', default='')
     dt: float = spec('s', 'integration increment (inputs are held over it)', 1.0e-5, 0.01,
                      default=1.0e-3)
     publish_rate: float = spec('Hz', 'measurement rate: 1/dt divided by a whole number',
@@ -152,6 +155,11 @@ class Frame:
     signals: Mapping[str, float]
     velocities: tuple[float, float]
     efforts: tuple[float, float]
+    #: A circuit's own topics (``ls_pressure``, ``loads/<name>/...``), through the sensor
+    #: model of their kind where they have one, and its joints (names, positions,
+    #: velocities).
+    extra: Mapping[str, float] = field(default_factory=dict)
+    joints: tuple = ((), (), ())
 
 
 class Sink(Protocol):
@@ -246,8 +254,10 @@ class Runner:
             self._reset_out = True
         else:
             self.sim.reset(self.initial_current, keep_time=self.sim.steps > 0)
-        self.sensors = SensorBank(self.profile, self.sim.dt * self.cfg.publish_every)
-        self._sensed = {sig for sig in self.sensors.channels if self.profile.spec(sig).active}
+        like = {t.topic: t.like for t in getattr(self.sim, 'topics', ()) if t.like}
+        self.sensors = SensorBank(self.profile, self.sim.dt * self.cfg.publish_every, like)
+        self._sensed = {sig for sig in self.sensors.channels
+                        if self.profile.spec(like.get(sig, sig)).active}
         self._current = self.initial_current
         self._cmd_seq = 0
         self._cmd_used = 0
@@ -308,6 +318,16 @@ class Runner:
                 self.cfg = replace(self.cfg, {name: value})
                 if name == 'pause_at':
                     self._pause_armed = value
+            self._cv.notify_all()
+
+    def set_input(self, name: str, value: float) -> None:
+        """A circuit's input by name (``boom.command``, from ``loads/boom/command``), held
+        from the next increment; a non-finite value is ignored, with a warning."""
+        with self._cv:
+            if not math.isfinite(value):
+                self._warn(f'nan {name}', f'ignored non-finite {name} {value!r}')
+                return
+            self._pending.setdefault('inputs', {})[name] = float(value)
             self._cv.notify_all()
 
     def stop(self) -> None:
@@ -440,7 +460,12 @@ class Runner:
         true = true_signals(y, self.sim.u)
         del true['solenoid_current']  # published before the increment, see _applied_current
         signals = {k: self._sense(k, v) for k, v in true.items()}
-        sink.measurement(Frame(self.sim.t, signals, velocities(y), efforts(self.params, y)))
+        extra, joints = {}, ((), (), ())
+        if hasattr(self.sim, 'extra'):  # a circuit's own topics and joints
+            extra = {k: self._sense(k, v) for k, v in self.sim.extra().items()}
+            joints = self.sim.joints()
+        sink.measurement(Frame(self.sim.t, signals, velocities(y), efforts(self.params, y),
+                               extra, joints))
 
     # ---- diagnostics (any thread) --------------------------------------------------------
 

@@ -14,6 +14,7 @@ setup(
         ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
         # config is a link to the repository's config/, the one source of the parameters.
         ('share/' + package_name + '/config', glob('config/*.yaml') + glob('config/*.xml')),
+        ('share/' + package_name + '/config/circuits', glob('config/circuits/*.yaml')),
     ],
     install_requires=['setuptools'],
     zip_safe=True,

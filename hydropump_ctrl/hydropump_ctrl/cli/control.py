@@ -25,6 +25,7 @@ from ._common import (
     overrides,
     plant_file,
     positive,
+    protect_output,
     run_dir,
     UsageError,
 )
@@ -213,8 +214,13 @@ def cmd_design(args) -> int:
     identified = identified_numbers(args)
     base = overrides(args.set)
     plant = plant_file(args)
-    out = output_file(args.out or plant.with_name(CONTROLLER_YAML), PARAMS_SUFFIXES,
+    default = (CONTROLLER_YAML if not args.circuit
+               else f'controller_{Path(args.circuit).stem}.yaml')
+    out = output_file(args.out or plant.with_name(default), PARAMS_SUFFIXES,
                       'params file', create=not args.dry_run)
+    protect_output(out, [plant, *([args.profile] if args.profile else []),
+                         *([args.circuit] if args.circuit else []),
+                         *([args.from_fit] if args.from_fit else [])], 'params file')
     params = load_params(plant)
     profile, prof_path = design_profile(args, params)
     signal = base.get('controller.flow_signal', General().flow_signal)
@@ -222,6 +228,16 @@ def cmd_design(args) -> int:
                      plant_name=plant.name, profile_name=prof_path.name)
     cfg = design_config(params, base=base, model=pm)
     sources = dict(pm.sources)
+    if args.circuit:
+        # The circuit's line: the capacitance the pump's outlet sees, and compensated loads.
+        from hydropump_sim.circuit import load_circuit
+
+        from ..experiments.circuit_loop import controller_config
+        circuit = load_circuit(args.circuit, plant=params)
+        cfg = controller_config(circuit, config=cfg)
+        sources['C_l'] = (f'{Path(args.circuit).name}: the capacitance at the pump outlet, '
+                          'every node weighted by how it follows')
+        sources['load_law'] = f'{Path(args.circuit).name}: compensated load sections'
     for key in base:
         if key.startswith('model.'):
             sources[key[len('model.'):]] = f'--set {key}'
@@ -392,8 +408,10 @@ def register(sub) -> None:
                         'there is one, else the pooled mean); overrides --G0 --tau --t-d')
     d.add_argument('--set', action='append', metavar='NAME=VALUE',
                    help='override a controller parameter, e.g. emc.tau_control=0.02')
+    d.add_argument('--circuit', help='design for the pump in this circuit (its line '
+                   'capacitance, its compensated loads): config/circuits/fig1.yaml')
     d.add_argument('--out', help='params file to write (default: controller.yaml beside the '
-                   'plant file)')
+                   'plant file; controller_<circuit>.yaml with --circuit); never an input')
     d.add_argument('--dry-run', action='store_true', help='print only, write nothing')
     d.set_defaults(func=cmd_design)
     c = sub.add_parser('closed-loop', help='EMC and PI against the fine model with the bench '

@@ -25,6 +25,8 @@ ARGUMENTS = [
     ('use_sim_time', 'false', 'ROS clock of the nodes on /clock (the suite follows /clock '
                               'anyway)'),
     ('params_file', '{config}/pump.yaml', 'plant parameters (ROS 2 params file)'),
+    ('circuit_file', '', "circuit the pump feeds (config/circuits/*.yaml); empty = the paper's "
+                         'load (config/circuits/paper.yaml)'),
     ('sensor_profile', '{config}/sensors.yaml', 'sensor profile; config/bench.yaml is the '
                                                 'test bench'),
     ('controller_params', '{config}/controller.yaml', 'controller parameters (from '
@@ -61,11 +63,17 @@ def _nodes(context):
            'start_paused': flag('start_paused')}
     if a['scenario_file']:
         sim['scenario_file'] = a['scenario_file']
+    if a['circuit_file']:
+        sim['circuit_file'] = a['circuit_file']
     rec = {'compression': a['compression']}
     if a['bag']:
         rec['output'] = a['bag']
     if a['topics'].strip():
         rec['topics'] = [t.strip() for t in a['topics'].split(',') if t.strip()]
+    elif a['circuit_file']:
+        # The suite's topics and what the circuit adds (ls_pressure, loads/<name>/...).
+        from hydropump_sim.circuit_plant import recorded_topics
+        rec['topics'] = recorded_topics(a['circuit_file'])
     nodes = [
         Node(package='hydropump_ros', executable='simulator', name='simulator', **common,
              parameters=[a['params_file'], a['sensor_profile'], sim_time, sim]),

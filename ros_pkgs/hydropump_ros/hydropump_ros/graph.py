@@ -45,14 +45,20 @@ def graph_commands(args) -> dict[str, list[str]]:
             + _p('start_paused', args.start_paused))
     if args.scenario_file:
         sim += _p('scenario_file', args.scenario_file)
+    if args.circuit_file:
+        sim += _p('circuit_file', args.circuit_file)
     ctrl = _p('autostart', not args.no_autostart)
     if args.controller_params:
         ctrl += _p('config_file', args.controller_params)
     rec = _p('compression', args.compression)
     if args.bag:
         rec += _p('output', args.bag)
-    if args.topics:
-        rec += _p('topics', '[' + args.topics + ']')
+    topics = args.topics
+    if not topics and args.circuit_file:
+        from hydropump_sim.circuit_plant import recorded_topics
+        topics = ','.join(recorded_topics(args.circuit_file))
+    if topics:
+        rec += _p('topics', '[' + topics + ']')
     cmds = {'simulator': sim, 'controller': ctrl, 'recorder': rec}
     return {k: [executable(k), '--ros-args', *common, *v] for k, v in cmds.items()
             if k not in (args.without or [])}
@@ -64,6 +70,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument('--use-sim-time', action='store_true',
                     help='ROS clock of the nodes on /clock (the suite follows /clock anyway)')
     ap.add_argument('--params-file', default=None, help='plant params (default config/pump.yaml)')
+    ap.add_argument('--circuit-file', default=None, help='circuit the pump feeds, e.g. '
+                    "config/circuits/fig1.yaml (default: the paper's load)")
     ap.add_argument('--sensor-profile', default=None, help='e.g. config/bench.yaml')
     ap.add_argument('--controller-params', default=None, help='e.g. config/controller.yaml')
     ap.add_argument('--scenario-file', default=None, help='inputs scheduled in simulation time')
@@ -84,7 +92,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     args.params_file = args.params_file or default_params_path()
-    for name in ('params_file', 'sensor_profile', 'controller_params', 'scenario_file'):
+    for name in ('params_file', 'circuit_file', 'sensor_profile', 'controller_params',
+                 'scenario_file'):
         value = getattr(args, name)
         if value and not Path(value).is_file():
             print(f'error: --{name.replace("_", "-")} {value}: no such file', file=sys.stderr)

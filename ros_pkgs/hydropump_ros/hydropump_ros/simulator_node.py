@@ -24,11 +24,14 @@ from sensor_msgs.msg import FluidPressure, JointState
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
 
-from hydropump_sim import Simulator
+from hydropump_sim.circuit import default_circuit_path, load_circuit
+from hydropump_sim.circuit_plant import CircuitPlant
+from hydropump_sim.errors import HydropumpError
 from hydropump_sim.measure import FLOW_SIGNALS, JOINTS, PRESSURE_SIGNALS
 from hydropump_sim.params import default_params_path, Params
 from hydropump_sim.runner import LIVE_INPUTS, Runner, SimulatorConfig
 from hydropump_sim.scenario import load_scenario, ScenarioError
+from hydropump_sim.scenario import SIGNALS as SCENARIO_INPUTS
 from hydropump_sim.schema import check_all, ParamError, read_params_file, specs_of
 from hydropump_sim.sensors import load_profile, SensorConfig, SensorProfile
 
@@ -63,6 +66,14 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         self._pub_f = {k: self.create_publisher(Float64, k, qos) for k in FLOW_SIGNALS}
         self._pub_js = self.create_publisher(JointState, 'joint_states', qos)
         self._pub_i = self.create_publisher(Float64, 'solenoid_current', qos)
+        # What the circuit adds: its load-sensing pressure, each load's signals and command.
+        plant = self.runner.sim
+        self._pub_x = {t.topic: self.create_publisher(
+            FluidPressure if t.kind == 'pressure' else Float64, t.topic, qos)
+            for t in plant.topics}
+        for topic, name in plant.commands:
+            self.create_subscription(Float64, topic,
+                                     lambda m, n=name: self.runner.set_input(n, m.data), 10)
         self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         # The command has an executor of its own: what a lock-step exchange waits for.
         self._io = entry.SideExecutor(self)
@@ -105,17 +116,23 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         errors = cfg.plant_checks(params)
         if errors:
             raise bridge.StartupError(errors)
+        path = cfg.circuit_file or str(default_circuit_path())
+        try:
+            plant = CircuitPlant(load_circuit(path, plant=params), dt=cfg.dt)
+        except HydropumpError as exc:
+            raise bridge.StartupError([f'{path}: {ln}' for ln in exc.lines or [str(exc)]]) \
+                from None
         scenario = None
         if cfg.scenario_file:
             try:
-                scenario = load_scenario(cfg.scenario_file).inputs
+                scenario = load_scenario(cfg.scenario_file, [*SCENARIO_INPUTS,
+                                                             *plant.circuit.all_inputs()]).inputs
             except ScenarioError as exc:
                 raise bridge.StartupError([f'{cfg.scenario_file}: {ln}' for ln in exc.lines]) \
                     from None
         self.cfg, self.params = cfg, params
         self.schema_specs = d.specs
-        self.runner = Runner(Simulator(params, dt=cfg.dt), cfg,
-                             profile=SensorProfile.from_config(sensors, overrides),
+        self.runner = Runner(plant, cfg, profile=SensorProfile.from_config(sensors, overrides),
                              scenario=scenario, log=self._log)
 
     def _log(self, level: str, text: str) -> None:
@@ -230,7 +247,10 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         self._m_float = Float64()
         self._m_p = {k: FluidPressure(variance=prof.spec(k).noise_std ** 2)
                      for k in PRESSURE_SIGNALS}
-        self._m_js = JointState(name=[j[0] for j in JOINTS])
+        plant = self.runner.sim
+        self._m_js = JointState(name=[j[0] for j in JOINTS] + plant.joints()[0])
+        self._m_x = {t.topic: FluidPressure(variance=prof.spec(t.like or '').noise_std ** 2)
+                     if t.kind == 'pressure' else Float64() for t in plant.topics}
         self._p_atm = self.params.fluid.p_atm
 
     def current(self, t: float, value: float) -> None:
@@ -249,11 +269,20 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
             set_stamp(msg.header.stamp, ns)
             msg.fluid_pressure = absolute(sig[topic], self._p_atm)
             self._pub_p[topic].publish(msg)
+        for topic, value in frame.extra.items():
+            msg = self._m_x[topic]
+            if isinstance(msg, FluidPressure):
+                set_stamp(msg.header.stamp, ns)
+                msg.fluid_pressure = absolute(value, self._p_atm)
+            else:
+                msg.data = value
+            self._pub_x[topic].publish(msg)
         js = self._m_js
         set_stamp(js.header.stamp, ns)
-        js.position = [sig['spool_position'], sig['actuator_position']]
-        js.velocity = list(frame.velocities)
-        js.effort = list(frame.efforts)
+        names, positions, velocities = frame.joints
+        js.position = [sig['spool_position'], sig['actuator_position'], *positions]
+        js.velocity = [*frame.velocities, *velocities]
+        js.effort = [*frame.efforts, *(0.0 for _ in names)]
         self._pub_js.publish(js)
 
     # ---- diagnostics (executor thread) ---------------------------------------------------
