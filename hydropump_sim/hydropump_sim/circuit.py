@@ -629,10 +629,13 @@ def _port_block(comp: Component, index: dict[str, int]) -> tuple[list[float], li
 
 def _return_paths(comps: list[Component], nodes: list[str], fixed: dict, users: dict
                   ) -> list[str]:
-    """Every node must reach a node of fixed pressure through components that carry flow
-    (else its oil has nowhere to go: a load with no return path)."""
+    """Every node must reach a node of fixed pressure through passages (valves, orifices;
+    not through an actuator, which passes on what it takes): else its oil has nowhere to go,
+    a load with no return path."""
     adj: dict[str, set[str]] = {n: set() for n in nodes}
     for comp in comps:
+        if not comp.PASSAGE:
+            continue
         flow_nodes = [n for spec in comp.PORTS if not spec.sense
                       for n in comp.ports.get(spec.name, [])]
         if comp.EXTERNAL_RETURN:

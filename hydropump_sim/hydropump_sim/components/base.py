@@ -115,6 +115,9 @@ class Component:
     kernel: ClassVar[Any] = None
     #: Its flow leaves the circuit (a load to a held pressure): a return path of its own.
     EXTERNAL_RETURN: ClassVar[bool] = False
+    #: Its ports are joined by a passage the oil can return through (a valve); an actuator
+    #: is not one: what it takes at ``a`` it gives at ``b``, which must drain elsewhere.
+    PASSAGE: ClassVar[bool] = True
 
     def __init__(self, name: str, params: Any, ports: Mapping[str, list[str]],
                  fluid: Any = None):

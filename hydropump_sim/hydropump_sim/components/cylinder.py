@@ -85,6 +85,7 @@ class Cylinder(Component):
                SignalSpec('flow', 'm^3/s', 'flow taken by the cap side, A_a v'),
                SignalSpec('force', 'N', 'external force'))
     kernel = kernel
+    PASSAGE = False
 
     def states(self):
         r = self.params

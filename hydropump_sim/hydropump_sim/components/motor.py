@@ -60,6 +60,7 @@ class Motor(Component):
                SignalSpec('flow', 'm^3/s', 'flow through the motor'),
                SignalSpec('torque', 'N m', 'load torque'))
     kernel = kernel
+    PASSAGE = False
 
     def states(self):
         return (StateSpec('speed', 'rad/s', 100.0),)
