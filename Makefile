@@ -24,6 +24,8 @@ $(STAMP): $(SETUP_FILES)
 		--config-settings editable_mode=compat \
 		$(foreach p,$(PKGS),-e $(p))
 	$(BIN)/python -m hydropump_ros.venv_index --root . > /dev/null
+	# Compile the plant and the shipped circuits once (numba caches them on disk).
+	$(BIN)/python -m hydropump_sim.warm
 	touch $@
 
 demo: $(STAMP)

@@ -25,15 +25,19 @@ component and the port; then it lays out
   component's block (its ports' node indices, then its own values);
 
 and generates the source of ``evaluate``: a call of each component's compiled kernel on
-its slices, then continuity at each node. The source depends on the structure only (which
-components, which ports, how many states), never on parameter values, so a file compiles
+its slices, then continuity at each node. The Jacobian the stepper needs is the compiled
+``evaluate`` differenced one colour at a time: the compiler derives the sparsity (a
+component couples its own states and the pressures at its ports) and a colouring of it
+(columns that share no row move together), 12 evaluations for Fig. 1's 29 states. The
+source depends on the structure only (which components, which ports, how many states),
+never on parameter values, so a file compiles
 once per structure and is cached on disk (``$HYDROPUMP_CACHE``, else
 ``~/.cache/hydropump``) for every later process.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 import hashlib
 import importlib.util
@@ -132,6 +136,7 @@ class Circuit:
     dither: float
     code: str
     scale_offset: int = 0
+    meters: dict[int, int] = field(default_factory=dict)
     entries: dict[str, Any] = field(repr=False, default_factory=dict)
     module: Any = field(repr=False, default=None)
 
@@ -227,12 +232,15 @@ class Circuit:
         call(self.module.evaluate_c, t, x, u, p, dx, y)
 
     def jacobian(self, t, x, u) -> np.ndarray:
-        """The compiled Jacobian ``df/dx`` at one point."""
-        from .integrator import call_jacobian
+        """``df/dx`` at one point, as the stepper takes it: forward differences of the
+        compiled right-hand side, one evaluation per colour of the circuit's sparsity."""
+        from .integrator import jacobian
+        x = np.array(x, dtype=float)
+        u = np.ascontiguousarray(u, dtype=float)
+        f0, y = self.rhs(t, x, u)
         J = np.zeros((self.n_states, self.n_states))
-        call_jacobian(self.module.jacobian_c, float(t), np.array(x, dtype=float),
-                      np.ascontiguousarray(u, dtype=float), self.p, J,
-                      np.empty(self.n_signals))
+        jacobian(self.module.evaluate_c, float(t), x, u, self.p, f0, self.state_scale, J,
+                 np.empty(self.n_states), y, self.colors, self.pattern)
         return J
 
     @property
@@ -246,15 +254,14 @@ class Circuit:
                 'dt_time': 1.0e-7 / max(self.dither, 1.0)}
 
     def stepper_model(self, timed: bool | None = None) -> tuple:
-        """The stepper's view of this circuit (:func:`hydropump_sim.integrator.model`), with
-        its compiled Jacobian; ``timed=False`` drops the dither's time dependence (a
-        steady-state march)."""
+        """The stepper's view of this circuit (:func:`hydropump_sim.integrator.model`):
+        its compiled right-hand side and the colouring of its Jacobian; ``timed=False``
+        drops the dither's time dependence (a steady-state march)."""
         from . import integrator
         st = self.structure()
         if timed is not None:
             st['timed'] = timed
-        return integrator.model(self.module.evaluate_c, st,
-                                getattr(self.module, 'jacobian_c', None))
+        return integrator.model(self.module.evaluate_c, st)
 
     @property
     def n_states(self) -> int:
@@ -276,7 +283,8 @@ class Circuit:
         """The same circuit file with more ``--set`` values (recompiled only if the
         structure changes)."""
         return load_circuit(self.source, {**self.entries.get('__sets__', {}), **sets},
-                            self.entries.get('__plant__'))
+                            self.entries.get('__plant__'),
+                            meters=self.entries.get('__meters__', ()))
 
 
 def default_circuit_path() -> Path:
@@ -316,7 +324,8 @@ def _split_sets(sets: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
 
 
 def load_circuit(path: str | Path, sets: Mapping[str, Any] | None = None,
-                 plant: str | Path | Params | None = None, compile: bool = True) -> Circuit:
+                 plant: str | Path | Params | None = None, compile: bool = True,
+                 meters: Sequence[str] = ()) -> Circuit:
     """Read, check, lay out and compile a circuit file.
 
     Parameters
@@ -330,6 +339,10 @@ def load_circuit(path: str | Path, sets: Mapping[str, Any] | None = None,
         calibrated one, the bench's dither laid over them).
     compile : bool
         ``False`` checks and lays out only (its names, its topics), without compiling.
+    meters : sequence of str
+        Signals (flows) to integrate over time as states ``meter:<signal>`` (volumes
+        delivered, returned): exact to the stepper's rounding, as a linear invariant of the
+        equations.
 
     Raises
     ------
@@ -341,12 +354,13 @@ def load_circuit(path: str | Path, sets: Mapping[str, Any] | None = None,
         doc = read_yaml(path)
     except ParamError as exc:
         raise CircuitError(exc.lines, str(path)) from None
-    return build_circuit(doc, str(path), path.parent, dict(sets or {}), plant, compile)
+    return build_circuit(doc, str(path), path.parent, dict(sets or {}), plant, compile,
+                         tuple(meters))
 
 
 def build_circuit(doc: Any, source: str, base: Path, sets: dict[str, Any],
                   plant_over: str | Path | Params | None = None,
-                  compile: bool = True) -> Circuit:
+                  compile: bool = True, meters: tuple[str, ...] = ()) -> Circuit:
     errors: list[str] = []
     if not isinstance(doc, Mapping) or not isinstance(doc.get('components'), Mapping) \
             or not doc['components']:
@@ -410,7 +424,7 @@ def build_circuit(doc: Any, source: str, base: Path, sets: dict[str, Any],
     if errors:
         raise CircuitError(errors, source)
     circuit = _layout(comps, composites, fluid, source, doc.get('name') or Path(source).stem,
-                      errors)
+                      errors, meters)
     for name, value in input_sets.items():
         try:
             k = circuit.inputs.index(name)
@@ -428,6 +442,7 @@ def build_circuit(doc: Any, source: str, base: Path, sets: dict[str, Any],
         raise CircuitError(errors, source)
     circuit.entries['__sets__'] = dict(sets)
     circuit.entries['__plant__'] = plant_over
+    circuit.entries['__meters__'] = meters
     if compile:
         circuit.module = compile_module(circuit.code)
     return circuit
@@ -509,7 +524,8 @@ def _ports(name: str, specs: tuple[PortSpec, ...], given: Any, errors: list[str]
 # ---- layout ----------------------------------------------------------------------------------
 
 def _layout(comps: list[Component], composites: dict[str, Expansion], fluid: Fluid,
-            source: str, name: str, errors: list[str]) -> Circuit:
+            source: str, name: str, errors: list[str], meters: tuple[str, ...] = ()
+            ) -> Circuit:
     nodes: list[str] = []
     for comp in comps:
         for spec in comp.PORTS:
@@ -591,6 +607,11 @@ def _layout(comps: list[Component], composites: dict[str, Expansion], fluid: Flu
             units.append('Pa')
             scales.append(1.0e6)
             integ.append(False)
+    for m in meters:
+        states.append(f'meter:{m}')
+        units.append('m^3')
+        scales.append(1.0)
+        integ.append(True)
     circuit = Circuit(
         name=name, source=source, fluid=fluid, parts=parts, composites=composites,
         nodes=nodes, fixed=fixed, volume={n: v for n, v in volume.items() if n not in fixed},
@@ -600,6 +621,14 @@ def _layout(comps: list[Component], composites: dict[str, Expansion], fluid: Flu
         signal_units=sig_units, p=np.array(p, dtype=float),
         pattern=np.zeros((0, 0), bool), colors=np.zeros(0, np.int64), dither=dither,
         code='')
+    circuit.meters = {}
+    for m in meters:
+        try:
+            circuit.meters[circuit.states.index(f'meter:{m}')] = circuit.signal_index(m)
+        except CircuitError as exc:
+            errors += exc.lines
+    if errors:
+        raise CircuitError(errors, source)
     # The state scales close the parameter vector: the Jacobian's difference steps.
     circuit.scale_offset = circuit.p.size
     circuit.p = np.concatenate([circuit.p, circuit.state_scale])
@@ -664,6 +693,8 @@ def _pattern(circuit: Circuit, node_states: dict[str, int]) -> np.ndarray:
     pat = np.zeros((n, n), dtype=bool)
     for i in range(n):
         pat[i, i] = True
+    for k in circuit.meters:  # a metered signal may depend on anything
+        pat[k, :] = True
     for part in circuit.parts:
         idx = list(range(part.x.start, part.x.stop))
         idx += [node_states[circuit.nodes[k]] for k in part.ports
@@ -678,9 +709,9 @@ def _generate(circuit: Circuit, node_states: dict[str, int], index: dict[str, in
     """The source of the circuit's ``evaluate`` (see the module)."""
     n_nodes = len(circuit.nodes)
     lines = [f'"""Generated by hydropump_sim.circuit for the structure of {circuit.name!r} '
-             f'(package sources {DIGEST}): do not edit."""', '', 'import numpy as np', '',
+             f'(package sources {DIGEST}): do not edit."""', '',
              'from hydropump_sim.components.laws import continuity',
-             'from hydropump_sim.integrator import EVALUATE, JACOBIAN',
+             'from hydropump_sim.integrator import EVALUATE',
              'from hydropump_sim.jitcache import cfunc']
     kernels: dict[str, str] = {}
     for part in circuit.parts:
@@ -718,90 +749,10 @@ def _generate(circuit: Circuit, node_states: dict[str, int], index: dict[str, in
         names = [s.name for s in part.comp.SIGNALS]
         if 'flow' in names:
             lines.append(f'    y[{part.y.start + names.index("flow")}] = Q[{index[node]}]')
-    lines += _generate_jacobian(circuit, node_states, index, kernels)
-    lines += ['', '', 'evaluate_c = cfunc(EVALUATE)(evaluate)',
-              'jacobian_c = cfunc(JACOBIAN)(jacobian)', '']
+    for k, i in circuit.meters.items():
+        lines.append(f'    dx[{k}] = y[{i}]  # meter')
+    lines += ['', '', 'evaluate_c = cfunc(EVALUATE)(evaluate)', '']
     return '\n'.join(lines)
-
-
-def _generate_jacobian(circuit: Circuit, node_states: dict[str, int], index: dict[str, int],
-                       kernels: dict[str, str]) -> list[str]:
-    """The source of the circuit's ``jacobian(t, x, u, p, J, y)``: ``df/dx`` by forward
-    differences of each component's kernel alone, in the states it reads (its own and the
-    pressures at its ports), then of continuity at each node. A component's kernel runs
-    once per state it reads instead of the whole circuit once per colour."""
-    n, n_nodes = circuit.n_states, len(circuit.nodes)
-    sc = circuit.scale_offset
-    out = ['', '', 'def jacobian(t, x, u, p, J, y):',
-           f'    P = y[0:{n_nodes}]', f'    Q = y[{n_nodes}:{2 * n_nodes}]',
-           f'    e = np.empty({n})', f'    e2 = np.empty({n})',
-           f'    Jq = np.zeros(({n_nodes}, {n}))', f'    Qt = np.empty({n_nodes})',
-           '    J[:, :] = 0.0']
-    # The operating point: every node's pressure, every node's total inflow.
-    for i, node in enumerate(circuit.nodes):
-        if node in node_states:
-            out.append(f'    P[{i}] = x[{node_states[node]}]')
-        else:
-            cname, how, key = circuit.fixed[node]
-            src = f'p[{N_FLUID + i}]' if how == 'param' else \
-                f'u[{circuit.inputs.index(f"{cname}.{key}")}]'
-            out.append(f'    P[{i}] = {src}')
-        out.append(f'    Q[{i}] = 0.0')
-
-    def call(part, rates):
-        k = kernels[type(part.comp).__module__]
-        return (f'{k}(t, x[{part.x.start}:{part.x.stop}], {rates}[{part.x.start}:'
-                f'{part.x.stop}], u[{part.u.start}:{part.u.stop}], p[{part.p.start}:'
-                f'{part.p.stop}], y[{part.y.start}:{part.y.stop}], P, Q)')
-
-    for part in circuit.parts:
-        out.append(f'    {call(part, "e")}')
-    out.append(f'    for i in range({n_nodes}):')
-    out.append('        Qt[i] = Q[i]')
-    for part in circuit.parts:
-        ports = sorted(set(part.ports))
-        local = [(j, -1) for j in range(part.x.start, part.x.stop)]
-        local += [(node_states[circuit.nodes[i]], i) for i in ports
-                  if circuit.nodes[i] in node_states]
-        if not local:
-            continue
-        out.append(f'    # {part.comp.name}')
-        zero = '; '.join(f'Q[{i}] = 0.0' for i in ports) or 'pass'
-        out.append(f'    {zero}')
-        out.append(f'    {call(part, "e")}')
-        for i in ports:
-            out.append(f'    qb{i} = Q[{i}]')
-        pairs = ', '.join(f'({j}, {nd})' for j, nd in local)
-        out += [f'    for j, nd in ({pairs},):',
-                '        xj = x[j]',
-                f'        h = 1.0e-8 * max(abs(xj), p[{sc} + j])',
-                '        x[j] = xj + h',
-                '        if nd >= 0:',
-                '            P[nd] = x[j]',
-                f'        {zero}',
-                f'        {call(part, "e2")}',
-                '        x[j] = xj',
-                '        if nd >= 0:',
-                '            P[nd] = xj']
-        if part.x.stop > part.x.start:
-            out += [f'        for r in range({part.x.start}, {part.x.stop}):',
-                    '            J[r, j] = (e2[r] - e[r]) / h']
-        for i in ports:
-            out.append(f'        Jq[{i}, j] += (Q[{i}] - qb{i}) / h')
-    fl = ', '.join(f'p[{k}]' for k in range(N_FLUID))
-    for node, k in node_states.items():
-        i = index[node]
-        v = f'p[{N_FLUID + i}]'
-        out += [f'    # continuity at {node}',
-                f'    c0 = continuity(P[{i}], Qt[{i}], {v}, {fl})',
-                f'    hq = 1.0e-8 * max(abs(Qt[{i}]), 1.0e-4)',
-                f'    cq = (continuity(P[{i}], Qt[{i}] + hq, {v}, {fl}) - c0) / hq',
-                f'    hp = 1.0e-8 * max(abs(P[{i}]), 1.0e6)',
-                f'    cp = (continuity(P[{i}] + hp, Qt[{i}], {v}, {fl}) - c0) / hp',
-                f'    for j in range({n}):',
-                f'        J[{k}, j] = cq * Jq[{i}, j]',
-                f'    J[{k}, {k}] += cp']
-    return out
 
 
 def cache_dir() -> Path:

@@ -24,7 +24,7 @@ from numba import types
 from numba.core.errors import NumbaExperimentalFeatureWarning
 import numpy as np
 
-from .jitcache import cfunc, inline, jit
+from .jitcache import inline, jit
 
 # Models are first-class functions to the stepper (numba calls the feature experimental; it
 # is what lets the stepper compile once for every model).
@@ -33,9 +33,6 @@ warnings.filterwarnings('ignore', category=NumbaExperimentalFeatureWarning)
 #: Signature of a model's ``evaluate(t, x, u, p, dx, y)``.
 _A = types.float64[::1]
 EVALUATE = types.void(types.float64, _A, _A, _A, _A, _A)
-#: Signature of a model's compiled Jacobian ``jacobian(t, x, u, p, J, y)`` (``y``: scratch of
-#: the outputs' size).
-JACOBIAN = types.void(types.float64, _A, _A, _A, types.float64[:, ::1], _A)
 
 # Rodas4 (Hairer & Wanner, Solving ODEs II, sec. IV.7), in the form
 #   (I/(h g) - J) k_i = f(t + a_i h, x + sum_j A_ij k_j) + sum_j C_ij k_j / h + h g_i f_t.
@@ -70,29 +67,17 @@ OK, FAIL_STEP, FAIL_NAN, FAIL_STEPS, FAIL_BUDGET = 0, 1, 2, 3, 4
 
 
 
-@cfunc(JACOBIAN)
-def no_jacobian(t, x, u, p, J, y):
-    """The Jacobian of a model that has none of its own (differences of ``evaluate``)."""
-
-
 @jit
 def call(f, t, x, u, p, dx, y):
     """Evaluate a model's compiled ``f`` once (from Python: analysis, steady states)."""
     f(t, x, u, p, dx, y)
 
 
-@jit
-def call_jacobian(jac, t, x, u, p, J, y):
-    """A model's compiled Jacobian once, from Python."""
-    jac(t, x, u, p, J, y)
-
-
-def model(f, st: dict, jac=None) -> tuple:
-    """What the stepper takes of a model: its ``evaluate`` (a cfunc of :data:`EVALUATE`),
-    its own Jacobian (a cfunc of :data:`JACOBIAN`) or ``None``, and its structure ``st``
-    (``scale``, ``timed``, ``dt_time``, ``colors``, ``pattern``; see the module)."""
-    return (f, no_jacobian if jac is None else jac, jac is not None,
-            np.ascontiguousarray(st['scale'], dtype=np.float64), bool(st['timed']),
+def model(f, st: dict) -> tuple:
+    """What the stepper takes of a model: its ``evaluate`` (a cfunc of :data:`EVALUATE`)
+    and its structure ``st`` (``scale``, ``timed``, ``dt_time``, ``colors``, ``pattern``;
+    see the module), as one tuple."""
+    return (f, np.ascontiguousarray(st['scale'], dtype=np.float64), bool(st['timed']),
             float(st['dt_time']), st['colors'], st['pattern'])
 
 
@@ -223,10 +208,7 @@ def time_derivative(f, t, x, u, p, f0, ft, work, ybuf, timed, dt_time):
 def w_matrix(m, t, x, u, p, h, f0, G, piv, J, work, ybuf):
     """``G = I/(h gamma) - df/dx`` at ``x``, LU-factorised in place; False if singular."""
     n = x.shape[0]
-    if m[2]:
-        m[1](t, x, u, p, J, ybuf)
-    else:
-        jacobian(m[0], t, x, u, p, f0, m[3], J, work, ybuf, m[6], m[7])
+    jacobian(m[0], t, x, u, p, f0, m[1], J, work, ybuf, m[4], m[5])
     for i in range(n):
         for j in range(n):
             G[i, j] = -J[i, j]
@@ -279,14 +261,14 @@ def rodas_step(m, t, X, u, P, h, rtol, Xnew, own_jacobian, ws, D):
     """
     rows, n = X.shape
     dense_out = D.shape[0] > 0
-    f, scale = m[0], m[3]
+    f, scale = m[0], m[1]
     f0, ft, work, xs, ybuf, J, G, K, piv = ws
     err = 0.0
     for r in range(rows):
         x = X[r]
         p = P[r]
         f(t, x, u, p, f0, ybuf)
-        time_derivative(f, t, x, u, p, f0, ft, work, ybuf, m[4], m[5])
+        time_derivative(f, t, x, u, p, f0, ft, work, ybuf, m[2], m[3])
         if r == 0 or own_jacobian:
             if not w_matrix(m, t, x, u, p, h, f0, G, piv, J, work, ybuf):
                 return np.inf

@@ -555,6 +555,29 @@ def pi_flow_tuning(model: dict, T: float) -> tuple[float, float]:
     return Kc / model['gain'], Kc / model['gain'] / Ti
 
 
+def pi_margin_compensated_tuning(model: dict, T: float) -> tuple[float, float]:
+    """SIMC PI on the margin against compensated loads (``model.load_law compensated``).
+
+    The plant from the current to the margin is an integrator behind the pump's lag,
+    ``gain / (C_l s (tau s + 1))``: the loads take their flow whatever the margin. SIMC for an
+    integrating process (Skogestad 2003) with the lag as delay (``theta = tau + T/2``,
+    ``tau_c = theta``): ``K_c = 1/(k' 2 theta)``, ``T_i = 8 theta``, times
+    :data:`PI_COMPENSATED`. Returns ``(p [A/Pa], i [A/(Pa s)])``.
+    """
+    k = model['gain'] / model['C_l']
+    theta = model['tau'] + 0.5 * T
+    Kc = 1.0 / (k * 2.0 * theta)
+    return PI_COMPENSATED[0] * Kc, PI_COMPENSATED[1] * Kc / (8.0 * theta)
+
+
+# Multiples of the SIMC gains above, found on Fig. 1 (docs/control.md): below the
+# compensators' setting the loads take every extra flow as orifices do, the integrator's
+# gain is gone, and SIMC's PI climbs out of that starvation at its integral rate alone
+# (7 s for a boom and a motor started together). These are the largest that leave no limit
+# cycle once the loads are fed.
+PI_COMPENSATED = (15.0, 20.0)
+
+
 def margin_operating_points(params, apertures=(0.08, 0.96), margins=(2.0e6, 3.0e6)):
     """Load-sensing operating points ``(xi_u, dp, q, g, tau_l)`` at the aperture and margin
     extremes: flow ``q = mu_u xi_u dp^(1/gamma)``, margin gain ``g = gamma dp/q`` [Pa s/m^3]

@@ -16,6 +16,7 @@ the simplified circuit model the controller needs.
 from __future__ import annotations
 
 from collections.abc import Mapping
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -29,6 +30,7 @@ from hydropump_sim.inputs import Signal
 from hydropump_sim.sensors import SensorBank, SensorConfig, SensorProfile
 
 from ..control import ControllerConfig, load_config, make_controller
+from ..control.design import pi_margin_compensated_tuning
 
 CONTROLS = ('margin', 'open', 'hydromechanical')
 #: The hydromechanical compensator's default margin [Pa] without a controller configuration.
@@ -96,7 +98,11 @@ def controller_config(circuit: Circuit, eq=None, config: ControllerConfig | None
     node = pump.comp.ports['out'][0]
     values = {'model.C_l': line_capacitance(circuit, eq, node)}
     if 'ls_pressure' in circuit.measured():
+        # Compensated sections: the line an integrator for EMC's model and PI's tuning.
         values['model.load_law'] = 'compensated'
+        model = {**dataclasses.asdict(config.model), 'C_l': values['model.C_l']}
+        values['pi.margin.p'], values['pi.margin.i'] = pi_margin_compensated_tuning(
+            model, config.period)
     return config.replace(values)
 
 
@@ -144,7 +150,8 @@ def run_circuit(circuit: Circuit, duration: float,
     margin : float, optional
         Margin [Pa] (default the configuration's ``reference.margin``).
     config : ControllerConfig, optional
-        Margin control's configuration (default :func:`controller_config`).
+        Margin control's configuration, as given (default: :func:`controller_config`, the
+        design for this circuit).
     profile : SensorProfile, optional
         The sensors the controller sees the circuit through (default ideal).
     settle : float, optional
@@ -154,7 +161,7 @@ def run_circuit(circuit: Circuit, duration: float,
     if control not in CONTROLS:
         raise InputError(f'control {control!r}: choose one of {", ".join(CONTROLS)}')
     if control == 'margin':
-        cfg = controller_config(circuit, config=config)
+        cfg = config if config is not None else controller_config(circuit)
         changes = {'controller.mode': 'margin'}
         if algorithm is not None:
             changes['controller.algorithm'] = algorithm

@@ -53,7 +53,7 @@ class ShuttleParams:
     V: float = spec('m^3', 'volume of the load-sensing line', 1.0e-9, 1.0e-2)
     A: float = spec('m^2', 'flow area of a shuttle passage', 1.0e-10, 1.0e-3, default=3.0e-6)
     A_bleed: float = spec('m^2', 'area of the bleed orifice to tank; 0 = none', 0.0, 1.0e-4,
-                          default=2.0e-8)
+                          default=1.0e-8)
     C_d: float = spec('-', 'discharge coefficient', 0.1, 1.0, default=0.65)
     dp_cr: float = spec('Pa', 'laminar/turbulent transition', 0.0, 1.0e6, default=1.0e4)
 
