@@ -14,6 +14,8 @@ from __future__ import annotations
 import json
 import time
 
+import numpy as np
+
 from ._common import output_file, overrides, positive, UsageError
 
 UNITS = {'Pa': (1e-5, 'bar'), 'm^3/s': (60000.0, 'L/min')}
@@ -130,6 +132,7 @@ def cmd_circuit(args) -> int:
 def analysis_text(circuit) -> str:
     """The paper's method on a circuit (see :mod:`hydropump_sim.circuit_analysis`)."""
     from hydropump_sim.circuit_analysis import (
+        EPSILON_STATIC,
         judged_signals,
         linearize,
         singular_perturbation,
@@ -152,22 +155,27 @@ def analysis_text(circuit) -> str:
         tau = f'{m.tau * 1e3:10.3g}' if m.tau != float('inf') else f'{"inf":>10}'
         lines.append(f'  {tau} {m.f_n:9.3g} {m.zeta:6.2f}  {m.dominant[0]}')
     checks, simple = singular_perturbation(circuit, eq)
-    lines.append(f'\nsection IV component by component (T = {T_CONTROL * 1e3:g} ms; error: '
-                 "largest deviation made static alone, as a fraction of the full run's "
-                 'excursion):')
+    lines.append(f'\nsection IV component by component (T = {T_CONTROL * 1e3:g} ms; tau: the '
+                 'slowest mode its static form removes, else its own; error: the largest '
+                 'deviation of the judged signals with it static alone, as a fraction of '
+                 'their excursion):')
     for c in checks:
         err = max(c.error.values()) if c.error else None
+        what = ('no static form' if not c.static else
+                f'static: error {err:.2%}' if err is not None else 'kept')
         lines.append(f'  {c.component:<28} tau {c.tau * 1e3:8.3g} ms  eps {c.epsilon:7.3g}  '
-                     + ('outside the bandwidth' if c.epsilon < 1 else 'inside the bandwidth')
-                     + (f', static: error {err:.2%}' if err is not None else
-                        ', no static form'))
+                     + ('outside' if c.epsilon < 1 else 'inside') + f' the bandwidth, {what}')
+    lines.append(f'  (made static: eps below {EPSILON_STATIC:g}, a mode well outside the '
+                 'bandwidth)')
     err = max(simple['error'].values()) if simple['error'] else 0.0
     lines.append(f'simplified circuit: {", ".join(simple["components"]) or "nothing"} made '
                  f'static; error {err:.2%}')
     tf = transfer_matrix(circuit, eq)
-    lines.append('\ntransfer matrix (DC gains, SI; eq. 16 generalised):')
-    dc = tf.dcgain()
+    f = 1.0
+    lines.append(f'\ntransfer matrix at {f:g} Hz (gain, SI units per unit of input; '
+                 'eq. 16 generalised; integrating paths have no DC gain):')
+    g = tf(2j * np.pi * f)
     for i, out in enumerate(tf.output_labels):
-        row = ', '.join(f'{inp}: {dc[i][j]:.4g}' for j, inp in enumerate(tf.input_labels))
+        row = ', '.join(f'{inp}: {abs(g[i][j]):.4g}' for j, inp in enumerate(tf.input_labels))
         lines.append(f'  {out}: {row}')
     return '\n'.join(lines)

@@ -60,6 +60,7 @@ class LsPump(Component):
     SIGNALS = (SignalSpec('margin', 'Pa', 'P_l - P_LS'),) + pump.Pump.SIGNALS[1:]
     kernel = kernel
     PLANT_PARAMS = True
+    P_OFFSET = 3  # the ports out and ls, the margin
 
     @classmethod
     def build_params(cls, values: Mapping[str, Any], source: str | None = None):

@@ -331,6 +331,8 @@ class Pump(Component):
     kernel = kernel
     #: Its parameters start from the circuit's plant params file.
     PLANT_PARAMS = True
+    #: Where the pump's ``P_*`` layout starts in its packed vector.
+    P_OFFSET = C_P
 
     @classmethod
     def build_params(cls, values: Mapping[str, Any], source: str | None = None) -> PumpSetup:
