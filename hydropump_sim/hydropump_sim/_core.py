@@ -142,7 +142,7 @@ def structure(p: np.ndarray, n: int) -> dict:
 def jacobian(t, x, u, p, f0, scale, J, work, ybuf):
     """Forward-difference Jacobian ``df/dx`` of the plant into ``J`` (dense)."""
     colors, pattern = ig.dense(x.shape[0])
-    ig.jacobian(evaluate_c, t, x, u, p, f0, scale, J, work, ybuf, colors, pattern)
+    ig.jacobian(evaluate_c.address, t, x, u, p, f0, scale, J, work, ybuf, colors, pattern)
 
 
 def structure_rows(P: np.ndarray, n: int) -> dict:

@@ -229,7 +229,7 @@ class Circuit:
     def evaluate(self, t, x, u, p, dx, y) -> None:
         """The compiled right-hand side and signals, called from Python."""
         from .integrator import call
-        call(self.module.evaluate_c, t, x, u, p, dx, y)
+        call(self.module.evaluate_c.address, t, x, u, p, dx, y)
 
     def jacobian(self, t, x, u) -> np.ndarray:
         """``df/dx`` at one point, as the stepper takes it: forward differences of the
@@ -239,13 +239,23 @@ class Circuit:
         u = np.ascontiguousarray(u, dtype=float)
         f0, y = self.rhs(t, x, u)
         J = np.zeros((self.n_states, self.n_states))
-        jacobian(self.module.evaluate_c, float(t), x, u, self.p, f0, self.state_scale, J,
+        jacobian(self.module.evaluate_c.address, float(t), x, u, self.p, f0, self.state_scale, J,
                  np.empty(self.n_states), y, self.colors, self.pattern)
         return J
 
     @property
     def evaluate_c(self):
         return self.module.evaluate_c
+
+    @property
+    def p_steady(self) -> np.ndarray:
+        """The packed parameters of a steady state: every component's
+        :meth:`~hydropump_sim.components.base.Component.steady_pack` (no dither)."""
+        p = self.p.copy()
+        for pt in self.parts:
+            steady = pt.comp.steady_pack()
+            p[pt.p.stop - len(steady):pt.p.stop] = steady
+        return p
 
     def structure(self) -> dict:
         """What :mod:`hydropump_sim.integrator` needs besides ``evaluate_c``."""

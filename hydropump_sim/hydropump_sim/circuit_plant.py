@@ -95,13 +95,17 @@ class CircuitPlant:
         self._i_pu = idx(f'{load.comp.name}.load_pressure') if load else None
         self._i_xi = idx(f'{load.comp.name}.aperture') if load else None
         sig = circuit.signal_index
-        self._y_pump = {o: sig(f'{self._pump}.{s}') for o, s in _PUMP.items()
-                        if f'{self._pump}.{s}' in circuit.signals}
+        pump_out = [(OUTPUTS.index(o), sig(f'{self._pump}.{s}')) for o, s in _PUMP.items()
+                    if f'{self._pump}.{s}' in circuit.signals]
+        self._o_pump = np.array([o for o, _ in pump_out], dtype=np.int64)
+        self._y_pump = np.array([k for _, k in pump_out], dtype=np.int64)
         m = circuit.measured()
         self._y_ls = sig(m['ls_pressure']) if 'ls_pressure' in m else None
-        self._y_load = ([sig(m['load_flow'])] if 'load_flow' in m else
-                        [sig(v['flow']) for v in circuit.loads().values() if 'flow' in v])
-        self._y_relief = [sig(f'{pt.comp.name}.flow') for pt in circuit.kinds('relief')]
+        self._y_load = np.array([sig(m['load_flow'])] if 'load_flow' in m else
+                                [sig(v['flow']) for v in circuit.loads().values()
+                                 if 'flow' in v], dtype=np.int64)
+        self._y_relief = np.array([sig(f'{pt.comp.name}.flow')
+                                   for pt in circuit.kinds('relief')], dtype=np.int64)
         self.topics, self.commands = circuit_topics(circuit)
         self._y_topics = [sig(t.signal) for t in self.topics]
         self._joints = self._joint_signals()
@@ -198,11 +202,9 @@ class CircuitPlant:
         y = self._sim.outputs()
         self._y = y
         out = np.zeros(c.N_Y)
-        for i, name in enumerate(OUTPUTS):
-            if name in self._y_pump:
-                out[i] = y[self._y_pump[name]]
-        out[c.Y_QLOAD] = sum(y[k] for k in self._y_load)
-        out[c.Y_QRELIEF] = sum(y[k] for k in self._y_relief)
+        out[self._o_pump] = y[self._y_pump]
+        out[c.Y_QLOAD] = y[self._y_load].sum()
+        out[c.Y_QRELIEF] = y[self._y_relief].sum()
         return out
 
     # ---- what a circuit adds -------------------------------------------------------------

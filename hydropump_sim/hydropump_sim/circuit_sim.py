@@ -282,9 +282,10 @@ def equilibrium(circuit: Circuit, u=None, *, x0=None, tol: float = 1.0e-9,
     scale = circuit.state_scale
     dx = np.empty(circuit.n_states)
     y = np.empty(circuit.n_signals)
+    p = circuit.p_steady  # a dither oscillates about the steady state
 
     def rates(xv):
-        circuit.evaluate(0.0, xv, u, circuit.p, dx, y)
+        circuit.evaluate(0.0, xv, u, p, dx, y)
         return dx
 
     def resid(z):
@@ -307,7 +308,7 @@ def equilibrium(circuit: Circuit, u=None, *, x0=None, tol: float = 1.0e-9,
     if x0 is not None:
         x = polish(x)
     if worst(x) > tol:
-        x = _march(circuit, x, u, held, horizon, time_budget, worst)
+        x = _march(circuit, x, u, p, held, horizon, time_budget, worst)
         x = polish(x)
     r = worst(x)
     if not r <= max(tol, 1.0e-6):
@@ -318,8 +319,9 @@ def equilibrium(circuit: Circuit, u=None, *, x0=None, tol: float = 1.0e-9,
     return CircuitEquilibrium(circuit, x, u, y_out, r)
 
 
-def _march(circuit: Circuit, x: np.ndarray, u: np.ndarray, held: np.ndarray, horizon: float,
-           time_budget: float, worst: Callable[[np.ndarray], float]) -> np.ndarray:
+def _march(circuit: Circuit, x: np.ndarray, u: np.ndarray, p: np.ndarray, held: np.ndarray,
+           horizon: float, time_budget: float, worst: Callable[[np.ndarray], float]
+           ) -> np.ndarray:
     """Integrate with held inputs, in chunks of 0.2 s, until the state settles."""
     dt, chunk = 1.0e-3, 200
     U = np.tile(u, (chunk, 1))
@@ -327,7 +329,6 @@ def _march(circuit: Circuit, x: np.ndarray, u: np.ndarray, held: np.ndarray, hor
     X = np.empty((1, chunk + 1, circuit.n_states))
     stats = np.zeros(2, dtype=np.int64)
     model = circuit.stepper_model(timed=False)
-    p = circuit.p.copy()
     t0 = time.perf_counter()
     for k in range(int(horizon / (dt * chunk))):
         status, _ = ig.run(model, x[None].copy(), k * dt * chunk, dt, U, p[None], 1.0e-6,

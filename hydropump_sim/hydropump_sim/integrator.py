@@ -3,8 +3,10 @@
 A model is a compiled function ``evaluate(t, x, u, p, dx, y)`` of signature
 :data:`EVALUATE` (a numba ``cfunc``) that fills the state derivative ``dx`` and the outputs
 ``y`` from the time ``t``, the state ``x``, the held inputs ``u`` and the packed parameters
-``p`` (all float64 arrays). The stepper takes it as a first-class function, so it is
-compiled, and cached, once: a new model or circuit costs its own equations only.
+``p`` (all float64 arrays). The stepper calls it through its address, as a first-class
+function, so it is compiled, and cached, once: a new model or circuit costs its own
+equations only. (The address, an integer, and not the cfunc object: numba types a cfunc
+argument in Python on every call, about 200 us, twenty times a plant's 1 ms step.)
 
 What the stepper needs to know of a model besides its function is its *structure*:
 
@@ -21,7 +23,9 @@ import math
 import warnings
 
 from numba import types
+from numba.core import cgutils
 from numba.core.errors import NumbaExperimentalFeatureWarning
+from numba.extending import intrinsic
 import numpy as np
 
 from .jitcache import inline, jit
@@ -33,6 +37,25 @@ warnings.filterwarnings('ignore', category=NumbaExperimentalFeatureWarning)
 #: Signature of a model's ``evaluate(t, x, u, p, dx, y)``.
 _A = types.float64[::1]
 EVALUATE = types.void(types.float64, _A, _A, _A, _A, _A)
+_FUNCTION = types.FunctionType(EVALUATE)
+
+
+@intrinsic
+def as_function(typingctx, f):
+    """A model's ``evaluate`` from its cfunc's address (or the function itself)."""
+    if isinstance(f, types.FunctionType):
+        return f(f), lambda context, builder, sig, args: args[0]
+    if not isinstance(f, types.Integer):
+        return None
+
+    def codegen(context, builder, sig, args):
+        fn = cgutils.create_struct_proxy(_FUNCTION)(context, builder)
+        ptr = context.get_value_type(types.voidptr)
+        fn.c_addr = builder.inttoptr(args[0], ptr)
+        fn.py_addr = ptr(None)
+        fn.jit_addr = ptr(None)
+        return fn._getvalue()
+    return _FUNCTION(f), codegen
 
 # Rodas4 (Hairer & Wanner, Solving ODEs II, sec. IV.7), in the form
 #   (I/(h g) - J) k_i = f(t + a_i h, x + sum_j A_ij k_j) + sum_j C_ij k_j / h + h g_i f_t.
@@ -69,15 +92,16 @@ OK, FAIL_STEP, FAIL_NAN, FAIL_STEPS, FAIL_BUDGET = 0, 1, 2, 3, 4
 
 @jit
 def call(f, t, x, u, p, dx, y):
-    """Evaluate a model's compiled ``f`` once (from Python: analysis, steady states)."""
-    f(t, x, u, p, dx, y)
+    """Evaluate a model's compiled ``f`` (its address) once (from Python: analysis, steady
+    states)."""
+    as_function(f)(t, x, u, p, dx, y)
 
 
 def model(f, st: dict) -> tuple:
     """What the stepper takes of a model: its ``evaluate`` (a cfunc of :data:`EVALUATE`)
     and its structure ``st`` (``scale``, ``timed``, ``dt_time``, ``colors``, ``pattern``;
-    see the module), as one tuple."""
-    return (f, np.ascontiguousarray(st['scale'], dtype=np.float64), bool(st['timed']),
+    see the module), as one tuple (the function as its address)."""
+    return (f.address, np.ascontiguousarray(st['scale'], dtype=np.float64), bool(st['timed']),
             float(st['dt_time']), st['colors'], st['pattern'])
 
 
@@ -109,7 +133,9 @@ def coloring(pattern: np.ndarray) -> np.ndarray:
 
 @jit
 def jacobian(f, t, x, u, p, f0, scale, J, work, ybuf, colors, pattern):
-    """Forward-difference Jacobian ``df/dx`` into ``J``, one evaluation per colour."""
+    """Forward-difference Jacobian ``df/dx`` into ``J``, one evaluation per colour (``f``
+    the model's function or its address)."""
+    f = as_function(f)
     n = x.shape[0]
     n_colors = 0
     for j in range(n):
@@ -208,7 +234,7 @@ def time_derivative(f, t, x, u, p, f0, ft, work, ybuf, timed, dt_time):
 def w_matrix(m, t, x, u, p, h, f0, G, piv, J, work, ybuf):
     """``G = I/(h gamma) - df/dx`` at ``x``, LU-factorised in place; False if singular."""
     n = x.shape[0]
-    jacobian(m[0], t, x, u, p, f0, m[1], J, work, ybuf, m[4], m[5])
+    jacobian(as_function(m[0]), t, x, u, p, f0, m[1], J, work, ybuf, m[4], m[5])
     for i in range(n):
         for j in range(n):
             G[i, j] = -J[i, j]
@@ -261,7 +287,7 @@ def rodas_step(m, t, X, u, P, h, rtol, Xnew, own_jacobian, ws, D):
     """
     rows, n = X.shape
     dense_out = D.shape[0] > 0
-    f, scale = m[0], m[1]
+    f, scale = as_function(m[0]), m[1]
     f0, ft, work, xs, ybuf, J, G, K, piv = ws
     err = 0.0
     for r in range(rows):
@@ -363,7 +389,7 @@ def run(m, X0, t0, dt, U, P, rtol, h_min, max_steps, decim, Y, X, stats, max_tot
     n_inc = U.shape[0]
     rows, n = X0.shape
     ny = Y.shape[2]
-    f = m[0]
+    f = as_function(m[0])
     x = X0.copy()
     dx = np.empty(n)
     h = dt
@@ -400,7 +426,7 @@ def run_dense(m, X0, t0, dt, U, P, rtol, h_min, max_steps, decim, Y, X, stats, m
     n_inc = U.shape[0]
     rows, n = X0.shape
     ny = Y.shape[2]
-    f = m[0]
+    f = as_function(m[0])
     x = X0.copy()
     Xnew = np.empty((rows, n))
     D = np.empty((rows, 2, n))

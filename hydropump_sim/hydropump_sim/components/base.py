@@ -169,6 +169,11 @@ class Component:
         """Frequency [Hz] of a time dependence within a held increment (0: none)."""
         return 0.0
 
+    def steady_pack(self) -> list[float]:
+        """:meth:`pack` for a steady state: without what only oscillates about one (a
+        dither, which would keep a steady-state march from ever settling)."""
+        return self.pack()
+
     def input_default(self, spec: InputSpec) -> float:
         if isinstance(spec.default, str):
             return float(getattr(self.params, spec.default))

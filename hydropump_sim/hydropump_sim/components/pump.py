@@ -369,6 +369,10 @@ class Pump(Component):
         inp = self.params.plant.input
         return inp.dither_freq if inp.dither_amp > 0.0 else 0.0
 
+    def steady_pack(self):
+        return list(pack(self.params.plant.replace({'input.dither_amp': 0.0}),
+                         self.params.model))
+
     def input_default(self, spec):
         plant = self.params.plant
         return plant.I_nominal if spec.name == 'current' else plant.pump.f_p
