@@ -38,6 +38,7 @@ once per structure and is cached on disk (``$HYDROPUMP_CACHE``, else
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+import dataclasses
 from dataclasses import dataclass, field
 import hashlib
 import importlib.util
@@ -177,6 +178,23 @@ class Circuit:
         for name, exp in self.composites.items():
             out += [f'{name}.{alias}' for alias in exp.inputs]
         return out
+
+    def operator_inputs(self) -> list[str]:
+        """The inputs an operator or a duty cycle sets (valve commands, forces, torques), by
+        their shortest names: every input but the pump's and the paper load's (eq. 9),
+        which the simulator holds as its operating point."""
+        plant = {f'{pt.comp.name}.{s.name}' for pt in self.parts
+                 if pt.comp.kind in ('pump', 'ls_pump', 'orifice_load') for s in pt.comp.INPUTS}
+        aliased = {full for exp in self.composites.values() for full in exp.inputs.values()}
+        return [n for n in self.all_inputs() if n not in plant and n not in aliased]
+
+    def input_spec(self, name: str, prefix: str = ''):
+        """The schema entry of an input (``boom.command``) as a live parameter
+        ``<prefix><name>``, its default the value it holds."""
+        k = self.input_index(name)
+        pt = next(pt for pt in self.parts if pt.u.start <= k < pt.u.stop)
+        entry = pt.comp.INPUTS[k - pt.u.start].param_spec('')
+        return dataclasses.replace(entry, name=f'{prefix}{name}', default=float(self.u0[k]))
 
     def pump(self) -> Part | None:
         """The circuit's pump (electro-hydraulic or hydromechanical), if any."""

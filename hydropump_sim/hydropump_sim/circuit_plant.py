@@ -173,6 +173,14 @@ class CircuitPlant:
         for name, value in named.items():
             sim.set_input(name, value)
 
+    def take_inputs(self, other: CircuitPlant) -> None:
+        """Hold what ``other`` (the circuit this one replaces) holds, input by input where
+        the names agree."""
+        mine, theirs = self.circuit.inputs, other.circuit.inputs
+        for k, name in enumerate(mine):
+            if name in theirs:
+                self._sim.u[k] = other._sim.u[theirs.index(name)]
+
     def reset(self, current: float | None = None, keep_time: bool = False,
               keep_inputs: bool = False) -> None:
         """The steady state at ``current`` and the circuit's inputs, or with ``keep_inputs``
@@ -181,10 +189,16 @@ class CircuitPlant:
         u = sim.u.copy() if keep_inputs else self.circuit.u0.copy()
         if current is not None and self._i_cur is not None:
             u[self._i_cur] = current
+        self.reset_note = None
         try:  # from where the plant is: a reset near its operating point is quick
             eq = equilibrium(self.circuit, u, x0=sim.x)
         except CircuitTrimError:
-            eq = equilibrium(self.circuit, u)
+            # No rest at these inputs (a pump whose flow compensated loads take exactly
+            # leaves the pressure free) starts from the nearest state found, and says so.
+            eq = equilibrium(self.circuit, u, strict=False)
+            if eq.residual > 1.0e-5:
+                self.reset_note = (f'no steady state at the held inputs (scaled residual '
+                                   f'{eq.residual:.2e})')
         sim.u[:] = eq.u
         sim.x = eq.x.copy()
         if not keep_time:
@@ -237,13 +251,14 @@ class CircuitPlant:
                 [float(y[j[2]]) if j[2] is not None else 0.0 for j in self._joints])
 
 
-def recorded_topics(circuit_file: str) -> list[str]:
-    """The recorder's topics for a circuit: the suite's, then what the circuit adds and its
-    load commands (the structure only: nothing is compiled)."""
+def recorded_topics(circuit_file: str, commands: bool = True) -> list[str]:
+    """The recorder's topics for a circuit: the suite's, then what the circuit adds and
+    (unless not ``commands``: a run that sets them as parameters) its load commands (the
+    structure only: nothing is compiled)."""
     from .circuit import load_circuit
     from .measure import SIGNALS
     circuit = load_circuit(circuit_file, compile=False)
-    topics, commands = circuit_topics(circuit)
+    topics, cmds = circuit_topics(circuit)
     suite = ['solenoid_current_cmd', *dict.fromkeys(i.topic for i in SIGNALS.values()),
              'controller/state']
-    return suite + [t.topic for t in topics] + [c[0] for c in commands]
+    return suite + [t.topic for t in topics] + [c[0] for c in cmds if commands]

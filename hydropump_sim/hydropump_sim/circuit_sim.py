@@ -260,7 +260,8 @@ def start_state(circuit: Circuit, u: np.ndarray, pressure: float | None = None) 
 
 
 def equilibrium(circuit: Circuit, u=None, *, x0=None, tol: float = 1.0e-9,
-                horizon: float = 30.0, time_budget: float = 30.0) -> CircuitEquilibrium:
+                horizon: float = 30.0, time_budget: float = 30.0, strict: bool = True
+                ) -> CircuitEquilibrium:
     """The steady state at held inputs ``u`` (a vector, or values by name; default the
     circuit's).
 
@@ -271,7 +272,8 @@ def equilibrium(circuit: Circuit, u=None, *, x0=None, tol: float = 1.0e-9,
     ------
     CircuitTrimError
         When the state does not settle within ``horizon`` simulated seconds or
-        ``time_budget`` seconds of wall time.
+        ``time_budget`` seconds of wall time (unless not ``strict``: then the nearest state
+        found comes back, its ``residual`` saying how far from rest it is).
     """
     if u is None or isinstance(u, Mapping):
         u = input_vector(circuit, u)
@@ -311,7 +313,9 @@ def equilibrium(circuit: Circuit, u=None, *, x0=None, tol: float = 1.0e-9,
         x = _march(circuit, x, u, p, held, horizon, time_budget, worst)
         x = polish(x)
     r = worst(x)
-    if not r <= max(tol, 1.0e-6):
+    # A scaled rate of 1e-5 per ms: one per cent of a state's scale a second, at rest for any
+    # use (the march and the polish stop short of tol where a component is nearly singular).
+    if strict and not r <= max(tol, 1.0e-5):
         raise CircuitTrimError(
             f'{circuit.name}: no steady state found at the held inputs (scaled residual '
             f'{r:.2e}): ' + _describe(circuit, x, u))

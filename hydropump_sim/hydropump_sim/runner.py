@@ -61,6 +61,10 @@ class SimulatorConfig:
     circuit_file: str = spec('path', 'circuit the pump feeds (config/circuits/*.yaml), its plant '
                              "the params file; empty = config/circuits/paper.yaml, the paper's "
                              'load', default='')
+    circuit_sets: str = spec('-', "values over the circuit file's, NAME=VALUE pairs separated "
+                             'by spaces (boom.compensator=post pump.type=ls_pump), as '
+                             'hydropump circuit --set takes them (live: from the next '
+                             '~/reset on, if the topics stay the same)', default='', live=True)
     sensor_profile: str = spec('path', 'sensor profile file (e.g. config/bench.yaml); empty = '
                                'ideal sensors', default='')
     scenario_file: str = spec('path', 'inputs scheduled in simulation time (hydropump simulate '
@@ -245,6 +249,11 @@ class Runner:
         step), where the reset state is published: simulation time never repeats, so every
         reader can tell the samples before the reset from those after it."""
         self.initial_current = self.cfg.initial_current or self.params.I_nominal
+        plant = self._pending.pop('plant', None)
+        if plant is not None:
+            plant.steps, plant.t = self.sim.steps, self.sim.t
+            plant.take_inputs(self.sim)
+            self.sim = plant
         if self._started:
             self.sim.set_inputs(**self._pending.pop('inputs', {}))
             self.sim.reset(self.initial_current, keep_time=True, keep_inputs=True)
@@ -254,6 +263,9 @@ class Runner:
             self._reset_out = True
         else:
             self.sim.reset(self.initial_current, keep_time=self.sim.steps > 0)
+        if getattr(self.sim, 'reset_note', None):
+            self._log('warn', f'reset: {self.sim.reset_note}; starting from the nearest '
+                              'state found')
         like = {t.topic: t.like for t in getattr(self.sim, 'topics', ()) if t.like}
         self.sensors = SensorBank(self.profile, self.sim.dt * self.cfg.publish_every, like)
         self._sensed = {sig for sig in self.sensors.channels
@@ -318,6 +330,13 @@ class Runner:
                 self.cfg = replace(self.cfg, {name: value})
                 if name == 'pause_at':
                     self._pause_armed = value
+            self._cv.notify_all()
+
+    def set_plant(self, sim: Simulator) -> None:
+        """Step ``sim`` (a circuit of another structure, the same topics) from the next
+        :meth:`reset` on; simulation time runs on."""
+        with self._cv:
+            self._pending['plant'] = sim
             self._cv.notify_all()
 
     def set_input(self, name: str, value: float) -> None:

@@ -396,6 +396,26 @@ def defaults_of(cls: type) -> dict[str, Any]:
 
 # ---- files -------------------------------------------------------------------------------
 
+def assignments(items: Iterable[str], what: str = '--set',
+                example: str = 'emc.tau_control=0.02') -> dict[str, Any]:
+    """``NAME=VALUE`` pairs, values read as YAML (``0.02``, ``true``, ``post``);
+    :class:`ParamError` names each bad pair."""
+    out, errors = {}, []
+    for item in items:
+        name, sep, text = item.partition('=')
+        if not sep or not name.strip():
+            errors.append(f'{what} {item!r}: expected NAME=VALUE, e.g. {example}')
+            continue
+        try:
+            out[name.strip()] = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            why = getattr(exc, 'problem', None) or 'not a YAML value'
+            errors.append(f'{what} {item!r}: the value is not valid YAML ({why})')
+    if errors:
+        raise ParamError(errors)
+    return out
+
+
 def read_yaml(path: str | Path) -> Any:
     """Read a YAML file; a missing, unreadable, non-UTF-8 or malformed file is a
     :class:`ParamError` that names the file and the place."""

@@ -4,7 +4,7 @@ start would otherwise wait a minute for numba).
 
 Every structure a shipped configuration runs is compiled: each circuit of
 ``config/circuits``, and Fig. 1 with post-compensated sections and with the hydromechanical
-compensator on its pump. Two worker processes share the work.
+compensator on its pump, under either kind. Two worker processes share the work.
 """
 
 from __future__ import annotations
@@ -46,7 +46,10 @@ def jobs(config: Path) -> list[tuple]:
     if fig1.is_file():
         out.append((_circuit, str(fig1), {'boom.compensator': 'post',
                                           'motor.compensator': 'post'}))
-        out.append((_circuit, str(fig1), {'pump.type': 'ls_pump', 'pump.ls.margin': 2.5e6}))
+        for kind in ('pre', 'post'):
+            out.append((_circuit, str(fig1), {'boom.compensator': kind,
+                                              'motor.compensator': kind,
+                                              'pump.type': 'ls_pump', 'pump.ls.margin': 2.5e6}))
     return out
 
 

@@ -12,8 +12,6 @@ from datetime import datetime
 import math
 from pathlib import Path
 
-import yaml
-
 from hydropump_sim.errors import HydropumpError
 from hydropump_sim.params import default_params_path
 
@@ -55,17 +53,11 @@ def positive(value: float, option: str, unit: str, *, zero: bool = False) -> flo
 
 def overrides(items: Iterable[str] | None) -> dict:
     """``--set NAME=VALUE`` pairs, values read as YAML (``0.02``, ``true``, ``pi``)."""
-    out = {}
-    for item in items or ():
-        name, sep, text = item.partition('=')
-        if not sep or not name.strip():
-            raise UsageError(f'--set {item!r}: expected NAME=VALUE, e.g. emc.tau_control=0.02')
-        try:
-            out[name.strip()] = yaml.safe_load(text)
-        except yaml.YAMLError as exc:
-            why = getattr(exc, 'problem', None) or 'not a YAML value'
-            raise UsageError(f'--set {item!r}: the value is not valid YAML ({why})') from None
-    return out
+    from hydropump_sim.schema import assignments, ParamError
+    try:
+        return assignments(items or ())
+    except ParamError as exc:
+        raise UsageError(exc.lines[0]) from None
 
 
 def run_dir(base: str | None, prefix: str) -> Path:

@@ -32,6 +32,8 @@ from collections import deque
 from collections.abc import Mapping
 import math
 
+from hydropump_sim.components.relief import static_flow
+
 from .base import Controller, finite_value
 from .design import compensated_estimator_gains, emc_gains, line_estimator_gains
 from .embedded import LineModel, PumpModel, trajectory_step
@@ -127,7 +129,7 @@ class EMCController(Controller):
         self._dp = self._dpr = max(dp, DP_FLOOR)
         self._pu = p_u
         self._q_line = Q
-        self._q_load = Q
+        self._q_load = (Q - self._relief(p_l)) / self._fed(self._dp)
         self._lnk = math.log(max(Q, Q_FLOOR) / self._dp ** (1.0 / self._line.gamma_u))
         e = 1.0 / self._line.gamma_u
         self._lnk_min = math.log(Q_FLOOR / DP_MAX ** e)
@@ -170,7 +172,9 @@ class EMCController(Controller):
             l_p, l_q = compensated_estimator_gains(self._line.C_l, dt, g.poles['line_fast'],
                                                    g.poles['line_slow'])
             e = p_l - p_u - self._dp
-            self._q_load = min(max(self._q_load + l_q * e, 0.0), self._pump.Q_max)
+            # q_load is the loads' demand; a starving load takes the fraction _fed of it.
+            self._q_load = min(max(self._q_load + l_q * e / self._fed(self._dp), 0.0),
+                               self._pump.Q_max)
             self._line_corr = l_p * e / self._dp
         elif p_l is not None and p_u is not None:
             gamma = self._line.gamma_u
@@ -192,10 +196,12 @@ class EMCController(Controller):
             a = math.exp(-dt / self._cfg.emc.tau_margin_reference)
             self._dpr = self._refs['margin'] + (self._dpr - self._refs['margin']) * a
             if self._compensated:
-                # The loads' flow, and the line capacitance filled or drained toward the
-                # margin trajectory.
-                r = self._q_load + (self._line.C_l * (self._dpr - self._dp)
-                                    / self._cfg.emc.tau_margin_loop)
+                # The loads' demand as they take it at the margin trajectory, and the line
+                # capacitance filled or drained toward it. Starving loads (below the
+                # compensators' setting) are fed their demand, not what they take now:
+                # every flow beyond that goes into them rather than into the margin.
+                r = self._q_load * self._fed(self._dpr) + (
+                    self._line.C_l * (self._dpr - self._dp) / self._cfg.emc.tau_margin_loop)
             else:
                 # Cancelling the load conductance makes the margin loop the same at any
                 # aperture.
@@ -206,7 +212,10 @@ class EMCController(Controller):
             k_r = g.k_r
         r = min(max(r, 0.0), pump.Q_max)
         self._r = r
-        Qr_next, v_r = trajectory_step(self._Qr, r, k_r, g.reference_limit, pump.tau, dt)
+        # Against compensated loads a falling trajectory takes the falling-flow dynamics
+        # (eq. 15): a load that shuts off must not leave the pump feeding the relief valve.
+        tau = pump.tau_down if self._compensated and r < self._Qr else pump.tau
+        Qr_next, v_r = trajectory_step(self._Qr, r, k_r, g.reference_limit, tau, dt)
         if Qr_next < self._Qr:
             # The trajectory is planned on the slower growing-flow dynamics; falling flow is
             # faster (eq. 15), so its feedforward comes from the falling-flow branch.
@@ -224,7 +233,9 @@ class EMCController(Controller):
         # Line inflow over the next period, with the pilot flow of eq. 17 for falling flow.
         q_line = pump.line_flow(self._Qhat, target)
         if self._compensated:
-            dp = self._dp + dt * (q_line - self._q_load) / self._line.C_l
+            q_out = (self._q_load * self._fed(self._dp)
+                     + self._relief(self._dp + (self._pu or 0.0)))
+            dp = self._dp + dt * (q_line - q_out) / self._line.C_l
         else:
             dp = self._line.step(self._dp, q_line, math.exp(self._lnk), dt)
         self._dp = max(dp + self._line_corr * self._dp, DP_FLOOR)
@@ -237,6 +248,24 @@ class EMCController(Controller):
             self._Qr = pump.step(self._Qhat, target, dt)[0]
         if self.mode != 'margin' or not self._used_law:
             self._dpr = self._dp
+
+    def _fed(self, dp: float) -> float:
+        """The share of their demand compensated loads take at margin ``dp``: all of it at
+        or above the compensators' setting, an orifice's ``sqrt(dp / dp_c)`` below (at
+        least a fifth, so that a margin near zero does not blow the demand estimate up)."""
+        dp_c = self._cfg.model.dp_compensator
+        if dp_c <= 0.0 or dp >= dp_c:
+            return 1.0
+        return max(math.sqrt(max(dp, 0.0) / dp_c), 0.2)
+
+    def _relief(self, p_l: float | None) -> float:
+        """The relief valve's flow at line pressure ``p_l`` (its static law), in the
+        compensated margin loop's model: the excess it passes is not a load to feed, so a
+        load that shuts off sends the pump back to the flow the loads take at once."""
+        m = self._cfg.model
+        if not self._compensated or m.relief_crack <= 0.0 or p_l is None:
+            return 0.0
+        return static_flow(p_l, m.relief_crack, m.relief_full, m.relief_q_full)
 
     def _on_mode(self, old: str, new: str) -> None:
         # The trajectories start from the present estimates. Back from margin mode the flow

@@ -122,6 +122,18 @@ class Model:
                          "paper's load: its flow grows with the margin) or compensated (a "
                          "load-sensing circuit's compensated sections: their flow does not)",
                          choices=('orifice', 'compensated'), default='orifice')
+    dp_compensator: float = spec('Pa', "the compensators' setting, as the compensated margin "
+                                 'loop models it: below it a compensated load starves and '
+                                 'takes flow as an orifice does (its flow grows with the '
+                                 'square root of the margin); 0 = fed at any margin', 0.0,
+                                 1.0e8, default=0.0)
+    relief_crack: float = spec('Pa', 'cracking pressure of the relief valve at the pump '
+                               'outlet, as the compensated margin loop models it (its flow '
+                               'is not a load to feed); 0 = none', 0.0, 1.0e9, default=0.0)
+    relief_full: float = spec('Pa', 'pressure at which that relief valve is fully open', 0.0,
+                              1.0e9, default=0.0)
+    relief_q_full: float = spec('m^3/s', 'flow of that relief valve fully open', 0.0, 1.0,
+                                default=0.0)
 
 
 @dataclass(frozen=True)
@@ -156,7 +168,7 @@ class Emc:
     tau_margin_loop: float = spec('s', 'margin eigenvalue against compensated loads '
                                   '(model.load_law compensated): the line capacitance is '
                                   'filled or drained toward the margin trajectory at this rate',
-                                  1.0e-3, 5.0, default=0.08, live=True)
+                                  1.0e-3, 5.0, default=0.04, live=True)
 
 
 def _pi_fields(unit_e: str, what: str, p: float, i: float, ff: float, ref_tau: float,
@@ -335,6 +347,10 @@ def _cross_checks(c: ControllerConfig, lo_hi: tuple[float, float] | None) -> lis
         if lim.current_min < lo - 1e-12 or lim.current_max > hi + 1e-12:
             out.append(f'limits.current_min/max = [{lim.current_min:g}, {lim.current_max:g}] A '
                        f'leave the current range of eq. 2, [{lo:g}, {hi:g}] A ({what})')
+    if m.relief_crack > 0.0 and not (m.relief_full > m.relief_crack and m.relief_q_full > 0.0):
+        out.append(f'model.relief_crack = {m.relief_crack:g} Pa: model.relief_full (now '
+                   f'{m.relief_full:g} Pa) must lie above it and model.relief_q_full (now '
+                   f'{m.relief_q_full:g} m^3/s) be positive')
     if m.Q_bar > m.Q_max:
         out.append(f'model.Q_bar = {m.Q_bar:g} m^3/s exceeds model.Q_max = {m.Q_max:g} m^3/s')
     if c.reference.flow > m.Q_max * 1.5:

@@ -36,6 +36,9 @@ IDENT_TOPICS = ['solenoid_current', 'solenoid_current_cmd', 'line_flow', 'pump_f
                 'joint_states', 'line_pressure', 'load_pressure', 'actuator_pressure']
 LOOP_TOPICS = IDENT_TOPICS + ['load_flow', 'controller/state']
 STAGES = ('identification', 'fitting', 'closed loop', 'model analysis', 'report')
+#: The stage names of a graph that ran beside the campaign's (the Fig. 1 duty cycle).
+BESIDE = 'Fig. 1 (beside): '
+
 
 
 # ---- experiments ----------------------------------------------------------------------------
@@ -328,7 +331,7 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
                      idents: Sequence[Experiment], loops: Sequence[Experiment], walls: dict,
                      started: float, starts: dict | None = None,
                      echo: Callable[[str], None] = print, pool=None,
-                     calibrate: bool = False) -> Path:
+                     calibrate: bool = False, fig1: Sequence[Experiment] = ()) -> Path:
     """Stages 2, 4 and 5 of the demo on its bags: fit, model analysis, report.
 
     Parameters
@@ -354,6 +357,9 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
     calibrate : bool
         Also calibrate the bench plant from the identification bags
         (:func:`bench_calibration`, about 25 s).
+    fig1 : sequence of Experiment
+        The Fig. 1 duty cycles that were run (:mod:`.fig1`), judged and drawn in a section
+        of their own.
     pool : concurrent.futures.Executor, optional
         Where the work that waits for nothing here runs beside the fit (the operating map
         and dither figures, the plant's twin); without one, all of it runs in turn.
@@ -400,6 +406,16 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
     loop_results = {exp.name: loop_figures(params, exp, read_recording(exp.bag(bag_dir)),
                                            t0=starts.get(exp.name, 0.0)) for exp in loops}
     echo(report.text_table(*report.loop_table(loop_results)))
+    duty = None
+    if fig1:
+        from . import fig1 as cycle
+        runs, duty_results = cycle.analyse({e.name: e.bag(bag_dir) for e in fig1}, starts,
+                                           profile, params.fluid.p_atm, params.relief.p_crack)
+        echo(report.text_table(cycle.TABLE_HEAD, cycle.table_rows(duty_results)))
+        kinds = sorted({e.name.rsplit('_', 1)[1] for e in fig1}, reverse=True)
+        for kind in kinds:
+            cycle.plot(runs, kind, figs / f'fig1_{kind}.png')
+        duty = (duty_results, [figs / f'fig1_{kind}.png' for kind in kinds])
     t0 = time.perf_counter()
     echo('[4/5 model analysis] modes and the singular-perturbation check ...')
     text, steps = analysis.format_report(params)
@@ -414,13 +430,15 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
     plots.plot_closed_loop(loop_results, figs / 'emc_vs_pi.png')
     maps()
     walls['report'] = stage_times(time.perf_counter() - t0)
+    # A graph beside the campaign's adds its simulated time, not its idle time.
     walls['total'] = stage_times(time.perf_counter() - started,
                                  sum(v['simulated_s'] for v in walls.values()),
-                                 sum(v['overhead_s'] for v in walls.values()))
+                                 sum(v['overhead_s'] for k, v in walls.items()
+                                     if not k.startswith(BESIDE)))
     sections = report.report_sections(ident, truth, rows, loop_results, modal, text, hyst,
-                                      walls, fit_paths, figs, bag_dir, calibration)
+                                      walls, fit_paths, figs, bag_dir, calibration, duty)
     page = report.write_html(run_dir, sections)
     (run_dir / 'summary.json').write_text(json.dumps(report.summary(
-        ident, truth, loop_results, walls), indent=2) + '\n')
+        ident, truth, loop_results, walls, duty[0] if duty else None), indent=2) + '\n')
     echo(report.text_table(report.STAGE_HEAD, report.stage_rows(walls)))
     return page

@@ -98,8 +98,23 @@ def controller_config(circuit: Circuit, eq=None, config: ControllerConfig | None
     node = pump.comp.ports['out'][0]
     values = {'model.C_l': line_capacitance(circuit, eq, node)}
     if 'ls_pressure' in circuit.measured():
-        # Compensated sections: the line an integrator for EMC's model and PI's tuning.
+        # Compensated sections: the line an integrator for EMC's model and PI's tuning,
+        # with the relief valve at the pump's outlet (the lowest cracking) in EMC's model.
         values['model.load_law'] = 'compensated'
+        values['controller.mode'] = 'margin'  # what a load-sensing circuit's pump runs
+        # The compensators' setting (the highest): below it the loads starve. Post
+        # compensators leave the metering edges the margin less their spring.
+        settings = [pt.comp.params.dp_set for pt in circuit.kinds('pre_compensator')]
+        settings += [config.reference.margin - pt.comp.params.dp_set
+                     for pt in circuit.kinds('post_compensator')]
+        if settings:
+            values['model.dp_compensator'] = max(settings)
+        reliefs = [pt.comp.params for pt in circuit.kinds('relief')
+                   if pt.comp.ports['in'][0] == node]
+        if reliefs:
+            r = min(reliefs, key=lambda r: r.p_crack)
+            values.update({'model.relief_crack': r.p_crack, 'model.relief_full': r.p_full,
+                           'model.relief_q_full': r.q_full})
         model = {**dataclasses.asdict(config.model), 'C_l': values['model.C_l']}
         values['pi.margin.p'], values['pi.margin.i'] = pi_margin_compensated_tuning(
             model, config.period)
@@ -116,16 +131,18 @@ def _margin_of(circuit: Circuit):
     return lambda y: y[i_l] - y[i_r]
 
 
-def start_current(circuit: Circuit, eq) -> float:
-    """A current to close the margin loop from: the one whose pump flow (eq. 11) is the flow
-    the loads take at the steady state ``eq`` (what its relief valves pass is surplus).
-    The open-loop steady state of a given margin is ill-conditioned (flow-controlled loads
-    take the same flow at any margin), so the loop starts here and settles the margin."""
+def start_current(circuit: Circuit, eq, share: float = 1.0) -> float:
+    """A current to close the margin loop from: the one whose pump flow (eq. 11) is
+    ``share`` of the flow the loads take at the steady state ``eq`` (what its relief valves
+    pass is surplus). The open-loop steady state of a given margin is ill-conditioned
+    (flow-controlled loads take the same flow at any margin), so the loop starts here and
+    settles the margin; below 1 the start is the well-posed rest of loads that starve a
+    little."""
     pump = circuit.pump()
     plant = pump.comp.params.plant
     n = pump.comp.name
     surplus = sum(eq[f'{pt.comp.name}.flow'] for pt in circuit.kinds('relief'))
-    q = max(eq[f'{n}.q_l'] - surplus, 0.0)
+    q = share * max(eq[f'{n}.q_l'] - surplus, 0.0)
     speed = eq.u[circuit.input_index(f'{n}.shaft_speed')]
     disp = q / (plant.pump.V_p * speed)
     i_s = (disp - 0.5) * plant.stroke_scale * plant.spool.K_a / plant.spool.phi_s

@@ -74,7 +74,7 @@ CALIBRATION_HEAD = ['parameter', 'start', 'calibrated', 'plant', 'error']
 
 
 def report_sections(ident, truth, rows, loops, modal, analysis_text, hyst, walls, fit_paths,
-                    figs, bag_dir, calibration=None) -> list[tuple[str, str]]:
+                    figs, bag_dir, calibration=None, duty=None) -> list[tuple[str, str]]:
     """The sections of the page, ``(title, HTML body)``: identification, Bode, steps,
     hysteresis, closed loop, model analysis and the run's wall times.
 
@@ -82,7 +82,8 @@ def report_sections(ident, truth, rows, loops, modal, analysis_text, hyst, walls
     ``analysis_text`` the model analysis (its modal part and all of it), ``hyst`` the gaps of
     :func:`.plots.plot_hysteresis`, ``fit_paths`` what :func:`~hydropump_ctrl.ident.write_report`
     wrote, ``figs`` the folder of the PNG figures, ``calibration`` the rows and the figure of
-    :func:`.campaign.bench_calibration` (or ``None``).
+    :func:`.campaign.bench_calibration` (or ``None``), ``duty`` the Fig. 1 duty cycle's
+    figures (:func:`.fig1.duty_figures` by run) and its PNG files (or ``None``).
     """
     head, lrows = loop_table(loops)
     return [
@@ -124,6 +125,8 @@ def report_sections(ident, truth, rows, loops, modal, analysis_text, hyst, walls
             [[k, f'{v:.3f}'] for k, v in hyst.items()]) + _img(figs / 'hysteresis.png')),
         ('EMC against PI (closed loop through the nodes)', _table(head, lrows)
          + _img(figs / 'emc_vs_pi.png')),
+        *([('The circuit of Fig. 1: load sensing against the highest load, through the nodes',
+            _fig1_text(duty))] if duty else []),
         ('Model analysis (section IV)', f'<pre>{html.escape(modal)}</pre>'
          f'<details><summary>full analysis</summary><pre>{html.escape(analysis_text)}'
          f'</pre></details>'),
@@ -131,6 +134,32 @@ def report_sections(ident, truth, rows, loops, modal, analysis_text, hyst, walls
          + f'<p>Bags (rosbag2, MCAP): <code>{html.escape(str(bag_dir.resolve()))}</code>; '
            '<code>ros2 bag info</code> and <code>ros2 bag play</code> read them.</p>'),
     ]
+
+
+def _fig1_text(duty) -> str:
+    from . import fig1
+    results, pngs = duty
+    return (
+        '<p>The circuit of config/circuits/fig1.yaml: the pump and its relief valve (250 bar) '
+        'feeding a priority steering cylinder behind a priority valve, and a boom cylinder '
+        'and a motor on demand with pressure compensators before their valves (pre) or '
+        'after them (post, flow sharing); a shuttle network senses the highest load. One '
+        'operator cycle of 6 s, through the simulator (the bench sensors, no dither), the '
+        'controller (config/controller_fig1.yaml, margin mode against the load-sensing '
+        'pressure, 25 bar) and the recorder, after a 1 s settling run: '
+        + '; '.join(f'{a:g} s {n}' for n, a, _ in fig1.PHASES) + '. The hydromechanical '
+        'rows put the classic load-sensing compensator on the pump instead of the solenoid '
+        '(its spring at the same 25 bar).</p>'
+        '<p>Margin error: mean |P_l - P_LS - 25 bar| over the last 0.3 s of each phase the '
+        'pump can serve (20 ms means); worst: the largest 20 ms mean outside the saturated '
+        "phase. Delivered / demanded: each load's flow over the flow it took unsaturated in "
+        'the 0.5 s before, scaled by its command, in the last 0.5 s of the demand beyond the '
+        "pump. Throttling loss: P_l Q_p - sum P_i Q_i over the cycle (the relief's "
+        "included); to the loads: the loads' share of the pump's hydraulic energy. Flows "
+        "are moved back by the flow sensors' configured 55 ms to line up with the "
+        'pressures.</p>'
+        + _table(fig1.TABLE_HEAD, fig1.table_rows(results))
+        + ''.join(_img(p) for p in pngs))
 
 
 STAGE_HEAD = ['stage', 'simulated [s]', 'wall [s]', 'orchestration overhead [% of wall]']
@@ -149,8 +178,9 @@ def stage_rows(stages: dict) -> list[list[str]]:
     return rows
 
 
-def summary(ident, truth: dict, loops: dict, walls: dict) -> dict:
-    """The run's numbers for ``summary.json`` (SI; the closed-loop traces left out)."""
+def summary(ident, truth: dict, loops: dict, walls: dict, duty: dict | None = None) -> dict:
+    """The run's numbers for ``summary.json`` (SI; the closed-loop traces left out; the Fig. 1
+    duty cycle's figures under ``fig1``)."""
     p = ident.pooled
     return {'identification': {'G0': p.mean['G0'], 'G0_std': p.std['G0'],
                                'tau': p.mean['tau'], 'tau_std': p.std['tau'],
@@ -159,7 +189,8 @@ def summary(ident, truth: dict, loops: dict, walls: dict) -> dict:
             'plant': truth,
             'closed_loop': {k: {kk: vv for kk, vv in v.items() if kk != 'y'}
                             for k, v in loops.items()},
-            'wall_time_s': {k: v['wall_s'] for k, v in walls.items()}, 'stages': walls}
+            'wall_time_s': {k: v['wall_s'] for k, v in walls.items()}, 'stages': walls,
+            **({'fig1': duty} if duty else {})}
 
 
 # ---- the page -------------------------------------------------------------------------------

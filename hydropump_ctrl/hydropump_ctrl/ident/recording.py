@@ -491,7 +491,8 @@ def _extras(signals, bag: Bag, roles: dict, where: str) -> dict[str, str]:
 
 def read_recording(path: str | Path, *, current_topic: str = DEFAULT_CURRENT_TOPIC,
                    flow_topic: str = DEFAULT_FLOW_TOPIC, signals: str | Sequence[str] | None
-                   = 'all', dt: float | None = None, name: str | None = None) -> Recording:
+                   = 'all', dt: float | None = None, name: str | None = None,
+                   topics: Sequence[str] = ()) -> Recording:
     """Read one bag into a :class:`Recording`: its current, its flow and its other signals.
 
     Parameters
@@ -513,6 +514,9 @@ def read_recording(path: str | Path, *, current_topic: str = DEFAULT_CURRENT_TOP
         Grid period [s]; default the flow topic's period.
     name : str, optional
         Label; default the bag's name.
+    topics : sequence of str
+        More topics of one number a message (``loads/boom/pressure``, a circuit's), read as
+        they are (FluidPressure absolute) under the names given.
 
     Raises
     ------
@@ -534,7 +538,9 @@ def read_recording(path: str | Path, *, current_topic: str = DEFAULT_CURRENT_TOP
     if roles['current'] == roles['flow']:
         raise BagError(f'{where}: current and flow are the same topic {roles["current"]}')
     extras = _extras(signals, bag, roles, where)
-    bag, streams = open_bag(path, sorted({*roles.values(), *extras.values()}))
+    wanted = {t: match_topic(t, bag.topics, where) for t in topics}
+    bag, streams = open_bag(path, sorted({*roles.values(), *extras.values(),
+                                          *wanted.values()}))
     notes = list(bag.notes)
     data = {}
     for role, topic in roles.items():
@@ -557,6 +563,13 @@ def read_recording(path: str | Path, *, current_topic: str = DEFAULT_CURRENT_TOP
     others = {sig: topic for sig, topic in extras.items() if sig not in names.values()}
     cols += _other_signals(others, streams, g, p_ns, where, notes,
                            strict=not isinstance(signals, str))
+    for label_, topic in wanted.items():
+        if topic not in streams:
+            raise BagError(f'{where}: topic {topic} has no readable messages')
+        t_ns, msgs, src = _messages(streams[topic], where)
+        t_ns, (v,) = _clean(t_ns, [_scalars(msgs, streams[topic], where)], topic, where,
+                            notes, finite=False)
+        cols.append((label_, topic, _sampled(t_ns, v, g), src))
     return Recording(t=(g - g[0]) * 1e-9, signals={c[0]: c[2] for c in cols}, name=label,
                      source=where, roles=names,
                      labels={c[0]: SIGNALS[c[0]].label if c[0] in SIGNALS else c[1]

@@ -115,11 +115,24 @@ class Declarer:
             self.errors += exc.lines
             return None
 
-    def finish(self) -> None:
-        """Raise :class:`StartupError` for every problem, and for every override that names
-        no parameter of the node (probably a typo)."""
+    def declare_specs(self, specs: Iterable[ParamSpec]) -> None:
+        """Declare entries that no schema class holds (a circuit's inputs), each at its
+        override or default; the bad ones are kept for :meth:`finish`."""
+        for s in specs:
+            self.specs[s.name] = s
+            value, err = check_value(s, self.given.get(s.name, s.default))
+            if err:
+                self.errors.append(err)
+                continue
+            self.node.declare_parameter(s.name, value, descriptor(s, not s.live),
+                                        ignore_override=True)
+
+    def finish(self, partial: bool = False) -> None:
+        """Raise :class:`StartupError` for every problem, and (unless ``partial``: more is
+        declared later) for every override that names no parameter of the node (probably a
+        typo)."""
         known = set(self.specs) | set(BUILTIN)
-        for name in self.given:
+        for name in self.given if not partial else ():
             if name not in known and not name.startswith('qos_overrides.'):
                 self.errors.append(unknown_key_line(name, sorted(known),
                                                     f'parameter of node {self.node.get_name()}'))

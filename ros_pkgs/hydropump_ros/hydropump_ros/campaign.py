@@ -29,6 +29,7 @@ import time
 
 from hydropump_ctrl.experiments.campaign import (
     analyse_campaign,
+    BESIDE,
     closed_loop_experiments,
     Experiment,
     identification_experiments,
@@ -55,6 +56,9 @@ def main(argv=None) -> int:
     ap.add_argument('--calibrate', action='store_true',
                     help='also calibrate the bench plant from the identification bags, with '
                          'its validation figure in the report (about 25 s more)')
+    ap.add_argument('--no-fig1', dest='fig1', action='store_false',
+                    help="leave out the Fig. 1 duty cycle (a second graph beside the paper's "
+                         'campaign)')
     ap.add_argument('--jobs', type=int, default=1, metavar='N',
                     help='run the experiments on N graphs at once, each in its own ROS '
                          'domain (default 1: one graph)')
@@ -85,9 +89,11 @@ def _run_stage(graph: Graph, what: str, stage: int, exps: list[Experiment], bag_
 
 
 def run_graph(stages: dict[str, list[Experiment]], run_dir: Path, log_dir: Path,
-              profile_path: Path, tag: str = '') -> tuple[dict, dict]:
-    """One graph in a ROS domain of its own: start it, run each stage's experiments into
-    ``run_dir/bags``, stop it. Returns the stage times and each experiment's start time."""
+              profile_path: Path, tag: str = '', topics: list[str] = LOOP_TOPICS,
+              **start) -> tuple[dict, dict]:
+    """One graph in a ROS domain of its own: start it (``start``: more of
+    :meth:`Graph.start`'s keywords), run each stage's experiments into ``run_dir/bags``,
+    stop it. Returns the stage times and each experiment's start time."""
     walls, starts = {}, {}
     with own_domain() as did:
         orch = Orchestrator()
@@ -95,7 +101,7 @@ def run_graph(stages: dict[str, list[Experiment]], run_dir: Path, log_dir: Path,
             t0 = time.perf_counter()
             _progress(f'{tag}[0/5 graph] simulator, controller and recorder (ROS domain {did})'
                       ' ...')
-            graph = Graph.start(orch, log_dir, LOOP_TOPICS, sensor_profile=profile_path)
+            graph = Graph.start(orch, log_dir, topics, sensor_profile=profile_path, **start)
             try:
                 _progress(f'{tag}      ready in ' + ', '.join(
                     f'{k} {v:.1f} s' for k, v in graph.ready_s.items()))
@@ -141,6 +147,29 @@ def _run_jobs(stages: dict, run_dir: Path, profile_path: Path, jobs: int) -> tup
     return {name: stage_times(wall, sum(e.duration for e in exps), min(idle, wall))}, starts
 
 
+def _start_fig1(pool, run_dir: Path, profile_path: Path, quick: bool):
+    """Submit the Fig. 1 duty cycle's graph to ``pool``: its experiments and the future of
+    :func:`run_graph`. The simulator runs config/circuits/fig1.yaml with the bench's sensors
+    but not its dither (at 400 Hz it costs the stepper five times over and moves nothing a
+    load sees); the controller runs config/controller_fig1.yaml (hydropump design
+    --circuit)."""
+    from hydropump_ctrl.experiments import fig1
+    from hydropump_sim.circuit import default_circuit_path, load_circuit
+    from hydropump_sim.circuit_plant import recorded_topics
+    from hydropump_sim.params import default_params_path
+    path = default_circuit_path().with_name('fig1.yaml')
+    variants = fig1.VARIANTS[::3] if quick else fig1.VARIANTS
+    exps = fig1.fig1_experiments(load_circuit(path), variants)
+    future = pool.submit(
+        run_graph, {'Fig. 1 duty cycle': exps}, run_dir, run_dir / 'logs' / 'fig1',
+        profile_path, '[Fig. 1] ',
+        topics=fig1.recorder_topics(recorded_topics(str(path), commands=False)),
+        circuit_file=path,
+        controller_file=default_params_path().with_name('controller_fig1.yaml'),
+        simulator={'input.dither_amp': 0.0})
+    return exps, future
+
+
 def run(args) -> int:
     from hydropump_sim.params import default_params_path, load_params
     from hydropump_sim.sensors import load_profile
@@ -158,9 +187,13 @@ def run(args) -> int:
     _progress(f'run folder: {run_dir}')
     from concurrent.futures import ProcessPoolExecutor
     import multiprocessing
+    spawn = multiprocessing.get_context('spawn')
     # Two processes for the report's work that needs neither the graph nor the fit (the
     # operating map and dither figures, the plant's twin): they run beside the fit.
-    with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context('spawn')) as pool:
+    with ProcessPoolExecutor(2, mp_context=spawn) as pool, \
+            ProcessPoolExecutor(1, mp_context=spawn) as beside:
+        # The Fig. 1 duty cycle: a graph of its own, beside the paper's campaign.
+        duty = _start_fig1(beside, run_dir, profile_path, args.quick) if args.fig1 else None
         # 1. The identification campaign, then 2. the closed loop; the stages are numbered
         # in the order they run.
         stages = {'identification': idents, 'closed loop': loops}
@@ -168,10 +201,16 @@ def run(args) -> int:
             walls, starts = _run_jobs(stages, run_dir, profile_path, args.jobs)
         else:
             walls, starts = run_graph(stages, run_dir, run_dir / 'logs', profile_path)
+        fig1 = []
+        if duty is not None:
+            fig1, future = duty
+            fig1_walls, fig1_starts = future.result()
+            walls.update({f'{BESIDE}{k}': v for k, v in fig1_walls.items()})
+            starts.update(fig1_starts)
         # 3. Fitting, 4. model analysis, 5. report: no graph needed.
         page = analyse_campaign(run_dir, run_dir / 'bags', params, profile, idents, loops,
                                 walls, t_all, starts, echo=_progress, pool=pool,
-                                calibrate=args.calibrate)
+                                calibrate=args.calibrate, fig1=fig1)
     print(f'\nreport: {page.resolve()}\nbags: {(run_dir / "bags").resolve()}')
     return 0
 

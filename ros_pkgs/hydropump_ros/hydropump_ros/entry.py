@@ -18,6 +18,7 @@ This module stays light (no rclpy, no numerics at import): it runs first.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
+import contextlib
 import importlib
 import signal
 import sys
@@ -188,40 +189,71 @@ def hidden_node(owner):
 
 
 class SideExecutor:
-    """A :func:`hidden_node` for a node's busiest subscriptions, spun by an executor of its
-    own in a thread of its own. rclpy rebuilds an executor's wait set at every wake, over
-    every subscription, service, timer and parameter service of its nodes: a lock-step
-    exchange that waits on one or a few subscriptions alone costs half as much
-    (bench/bench_ros.py)."""
+    """A :func:`hidden_node` for a node's busiest subscriptions, served by a loop of its own
+    in a thread of its own: one wait set over those subscriptions alone, and at each wake
+    every message each ready one holds, handed to its callback directly. An rclpy executor
+    rebuilds its wait set over every entity of its nodes and makes a task of each message:
+    for the few topics a lock-step exchange waits on, that machinery was most of a node's
+    CPU (bench/bench_ros.py)."""
 
     def __init__(self, owner):
-        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.guard_condition import GuardCondition
         self.node = hidden_node(owner)
         self._owner = owner
         self._closed = False
-        self.executor = SingleThreadedExecutor(context=owner.context)
-        self.executor.add_node(self.node)
+        self._wake = GuardCondition(None, None, context=owner.context)
         self._thread = threading.Thread(target=self._spin, name='io', daemon=True)
         self._thread.start()
 
     def subscribe(self, msg_type, topic: str, callback, qos):
-        return self.node.create_subscription(msg_type, self._owner.resolve_topic_name(topic),
-                                             callback, qos)
+        sub = self.node.create_subscription(msg_type, self._owner.resolve_topic_name(topic),
+                                            callback, qos)
+        self._wake.trigger()  # into the wait set now
+        return sub
 
     def _spin(self) -> None:
+        from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+        from rclpy.subscription import Subscription
+        with_info = Subscription.CallbackType.WithMessageInfo
+        ctx = self.node.context
         try:
-            while not self._closed and self.node.context.ok():
-                self.executor.spin_once(timeout_sec=0.1)
+            while not self._closed and ctx.ok():
+                subs = list(self.node.subscriptions)
+                with contextlib.ExitStack() as held:
+                    # Held handles are destroyed only once the wait and the takes are done.
+                    for sub in subs:
+                        held.enter_context(sub.handle)
+                    held.enter_context(self._wake.handle)
+                    held.enter_context(ctx.handle)
+                    ws = _rclpy.WaitSet(len(subs), 1, 0, 0, 0, 0, ctx.handle)
+                    ws.clear_entities()
+                    for sub in subs:
+                        ws.add_subscription(sub.handle)
+                    ws.add_guard_condition(self._wake.handle)
+                    ws.wait(100_000_000)
+                    ready = set(ws.get_ready_entities('subscription'))
+                    for sub in subs:
+                        if sub.handle.pointer not in ready:
+                            continue
+                        while not self._closed:
+                            taken = sub.handle.take_message(sub.msg_type, sub.raw)
+                            if taken is None:
+                                break
+                            if sub._callback_type is with_info:
+                                sub.callback(*taken)
+                            else:
+                                sub.callback(taken[0])
         except Exception:  # the context going down at shutdown ends it
-            if self.node.context.ok() and not self._closed:
+            if ctx.ok() and not self._closed:
                 raise
 
     def close(self) -> None:
-        """End the thread before the node goes: a node destroyed under a waiting executor
+        """End the thread before the node goes: a node destroyed under a waiting loop
         aborts the process (a C++ thread left joinable), as a Ctrl-C at start-up showed."""
         self._closed = True
+        self._wake.trigger()
         self._thread.join(timeout=2.0)
-        self.executor.shutdown(timeout_sec=1.0)
+        self._wake.destroy()
         self.node.destroy_node()
 
 

@@ -107,13 +107,18 @@ class Orchestrator:
                 raise GraphError(f'node {name} of {exp} exited with code {proc.returncode}: '
                                  f'see {log}')
 
-    def spin_until(self, predicate, timeout: float, what: str) -> None:
+    def spin_until(self, predicate, timeout: float, what: str, poll: float = 0.0) -> None:
+        """Spin until ``predicate()``; with ``poll`` [s], sleep that long between spins (a
+        wait on simulation time: each /clock message would otherwise cost a spin, and the
+        run's own process would take a third of a core from the graph)."""
         deadline = time.monotonic() + timeout
         while not predicate():
             self.check_nodes()
             if time.monotonic() > deadline:
                 raise GraphError(f'timed out after {timeout:g} s waiting for {what}')
             self.rclpy.spin_once(self.node, timeout_sec=0.01)
+            if poll and not predicate():
+                time.sleep(poll)
 
     def service_ready(self, name: str) -> bool:
         """Has the graph a server of ``name``? (Any type: the name says which node.)"""
@@ -167,6 +172,8 @@ PUBLISH_RATE = 200.0
 LONG_WAITS = {'simulator': {'lock_step_timeout': 60.0, 'wait_subscribers': 1},
               'controller': {'watchdog.safe_timeout': 60.0, 'watchdog.hold_timeout': 30.0}}
 NODES = ('recorder', 'simulator', 'controller')
+#: Sleep between spins while waiting for simulation time [s] (Orchestrator.spin_until).
+CLOCK_POLL = 0.003
 # A pause_at every simulation time has passed: the simulator pauses at the step it is at.
 PAUSE_NOW = 1.0e-9
 
@@ -203,24 +210,29 @@ class Graph:
     @classmethod
     def start(cls, orch: Orchestrator, log_dir: Path, topics: list[str], *,
               sensor_profile: str | Path | None = None, params_file: str | Path | None = None,
-              publish_rate: float = PUBLISH_RATE) -> Graph:
+              circuit_file: str | Path | None = None, controller_file: str | Path | None = None,
+              simulator: dict | None = None, publish_rate: float = PUBLISH_RATE) -> Graph:
         """Start the three nodes (in parallel, in the orchestrator's namespace) and wait
         until each is ready; :attr:`ready_s` has each one's start-up time [s] from the
         process start: the simulator's services answer, the controller is active, the
-        recorder has matched a publisher on every topic."""
+        recorder has matched a publisher on every topic. ``simulator`` holds more of the
+        simulator's parameters; ``controller_file`` is the controller's ``config_file``."""
         graph = cls(orch, log_dir=log_dir, publish_rate=publish_rate)
         log_dir.mkdir(parents=True, exist_ok=True)
         sim = {'lock_step': True, 'start_paused': True, 'command_timeout': 60.0,
-               'publish_rate': publish_rate, **LONG_WAITS['simulator']}
-        if params_file:
-            sim['params_file'] = str(Path(params_file).resolve())
-        if sensor_profile:
-            sim['sensor_profile'] = str(Path(sensor_profile).resolve())
+               'publish_rate': publish_rate, **LONG_WAITS['simulator'], **(simulator or {})}
+        for key, path in (('params_file', params_file), ('sensor_profile', sensor_profile),
+                          ('circuit_file', circuit_file)):
+            if path:
+                sim[key] = str(Path(path).resolve())
+        ctrl = {'autostart': True, **LONG_WAITS['controller']}
+        if controller_file:
+            ctrl['config_file'] = str(Path(controller_file).resolve())
         ns = ['-r', f'__ns:={orch.namespace}'] if orch.namespace else []
         commands = {
             'recorder': ['-p', 'autostart:=false', '-p', f'topics:={_ros_value(topics)}'],
             'simulator': _ros_args(sim),
-            'controller': ['-p', 'autostart:=true'] + _ros_args(LONG_WAITS['controller']),
+            'controller': _ros_args(ctrl),
         }
         t0 = time.perf_counter()
         for name in NODES:
@@ -422,7 +434,7 @@ class Graph:
                 self._run_to(t - self.period, exp)
                 orch.spin_until(lambda t=t: orch.ctrl_t >= t - self.period - 1e-9, 60,
                                 f"the controller's update at {t - self.period:.6g} s in "
-                                f'{exp.name}')
+                                f'{exp.name}', poll=CLOCK_POLL)
             else:
                 self._run_to(t, exp)
             orch.set_params(node, values)
@@ -463,7 +475,7 @@ class Graph:
         t_run = time.perf_counter()
         orch.call(SetBool, 'simulator/pause', SetBool.Request(data=False))
         orch.spin_until(lambda: orch.t >= t - 1e-9, 600,
-                        f'simulation time {t:g} s in {exp.name}')
+                        f'simulation time {t:g} s in {exp.name}', poll=CLOCK_POLL)
         self.running_s += time.perf_counter() - t_run
 
     def close(self) -> None:

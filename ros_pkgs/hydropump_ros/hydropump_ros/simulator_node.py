@@ -32,7 +32,7 @@ from hydropump_sim.params import default_params_path, Params
 from hydropump_sim.runner import LIVE_INPUTS, Runner, SimulatorConfig
 from hydropump_sim.scenario import load_scenario, ScenarioError
 from hydropump_sim.scenario import SIGNALS as SCENARIO_INPUTS
-from hydropump_sim.schema import check_all, ParamError, read_params_file, specs_of
+from hydropump_sim.schema import assignments, check_all, ParamError, read_params_file, specs_of
 from hydropump_sim.sensors import load_profile, SensorConfig, SensorProfile
 
 from . import bridge, entry
@@ -42,6 +42,8 @@ from .conversions import absolute, seconds_to_ns, set_stamp, stamp
 # loaded machine can take seconds. Two simulators started within this of each other both
 # refuse; a later one refuses alone.
 DISCOVERY_WINDOW = 3.0
+# The prefix of the circuit's operator inputs as live parameters (inputs.boom.command).
+INPUTS = 'inputs.'
 
 
 def all_specs():
@@ -112,13 +114,28 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
                      for line in check_all(Params, overrides)[1] if 'unknown' in line]
         params = d.declare(Params, {**plant, **overrides}, source=plant_file)
         sensors = d.declare(SensorConfig, profile.flat(), source=cfg.sensor_profile or None)
-        d.finish()
+        d.finish(partial=True)
         errors = cfg.plant_checks(params)
         if errors:
             raise bridge.StartupError(errors)
-        path = cfg.circuit_file or str(default_circuit_path())
+        path = self._circuit_file = cfg.circuit_file or str(default_circuit_path())
+        self.params = params
         try:
-            plant = CircuitPlant(load_circuit(path, plant=params), dt=cfg.dt)
+            circuit = self._circuit(cfg.circuit_sets)
+        except HydropumpError as exc:
+            raise bridge.StartupError([f'{path}: {ln}' for ln in exc.lines or [str(exc)]]) \
+                from None
+        # The operator's inputs (valve commands, forces, torques) as live parameters
+        # inputs.<name>: an orchestrated run sets them at an exact instant, as it sets the
+        # operating point; loads/<name>/command sets the same input.
+        self._inputs = {f'{INPUTS}{n}': n for n in circuit.operator_inputs()}
+        d.declare_specs([circuit.input_spec(n, INPUTS) for n in circuit.operator_inputs()])
+        d.finish()
+        for name, value in d.given.items():  # held from the first step
+            if name in self._inputs:
+                circuit.u0[circuit.input_index(self._inputs[name])] = float(value)
+        try:
+            plant = CircuitPlant(circuit, dt=cfg.dt)
         except HydropumpError as exc:
             raise bridge.StartupError([f'{path}: {ln}' for ln in exc.lines or [str(exc)]]) \
                 from None
@@ -130,10 +147,31 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
             except ScenarioError as exc:
                 raise bridge.StartupError([f'{cfg.scenario_file}: {ln}' for ln in exc.lines]) \
                     from None
-        self.cfg, self.params = cfg, params
+        self.cfg = cfg
         self.schema_specs = d.specs
         self.runner = Runner(plant, cfg, profile=SensorProfile.from_config(sensors, overrides),
                              scenario=scenario, log=self._log)
+
+    def _circuit(self, sets: str):
+        """The circuit file with ``circuit_sets``, on the node's plant parameters."""
+        return load_circuit(self._circuit_file, assignments(
+            sets.split(), 'circuit_sets', 'boom.compensator=post'), plant=self.params)
+
+    def _other_circuit(self, sets: str) -> tuple[CircuitPlant | None, str | None]:
+        """The plant of new ``circuit_sets``, or why not: its topics, commands and joints
+        must be those the node has (publishers and subscriptions are made once)."""
+        try:
+            plant = CircuitPlant(self._circuit(sets), dt=self.cfg.dt)
+        except HydropumpError as exc:
+            return None, f'circuit_sets = {sets!r}: ' + '; '.join(exc.lines or [str(exc)])
+        old = self.runner.sim
+
+        def face(p):
+            return p.topics, p.commands, p.joints()[0], p.circuit.operator_inputs()
+        if face(plant) != face(old):
+            return None, (f'circuit_sets = {sets!r} changes the topics or inputs of the '
+                          'circuit: restart the simulator with it')
+        return plant, None
 
     def _log(self, level: str, text: str) -> None:
         entry.log(self.get_logger(), level, text)
@@ -156,9 +194,19 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
 
     def _on_set_parameters(self, params):
         reason = bridge.refusal(self.schema_specs, params)
+        plant = None
+        for p in params:
+            if reason is None and p.name == 'circuit_sets':
+                plant, reason = self._other_circuit(p.value)
         if reason is None:
+            if plant is not None:
+                self.runner.set_plant(plant)
             for p in params:
-                if p.name in LIVE_INPUTS or p.name in self.schema_specs:
+                if p.name == 'circuit_sets':
+                    continue
+                if p.name in self._inputs:
+                    self.runner.set_input(self._inputs[p.name], p.value)
+                elif p.name in LIVE_INPUTS or p.name in self.schema_specs:
                     self.runner.set_parameter(p.name, p.value)
         return bridge.result(reason)
 
