@@ -1,5 +1,6 @@
 """The main job, shortened: real nodes, a three-experiment identification campaign, the EMC
-closed loop, the fit, the report (the end-to-end test of the demo)."""
+closed loop, the fit, the report, and beside them the Fig. 1 duty cycle under EMC with
+pre- and post-compensated sections (the end-to-end test of the demo)."""
 
 import json
 import os
@@ -75,7 +76,36 @@ def test_report_files_and_printed_tables(demo):
     for name in ('fig5.png', 'fig6.png', 'result.json', 'report.md'):
         assert (out / 'identification' / name).stat().st_size > 0
     bags = sorted((out / 'bags').iterdir())
-    assert len(bags) == 6 and all((b / 'metadata.yaml').is_file() for b in bags)
+    assert len(bags) == 8 and all((b / 'metadata.yaml').is_file() for b in bags)
+    for name in ('fig1_pre.png', 'fig1_post.png'):
+        assert (out / 'figures' / name).stat().st_size > 10_000
+    assert 'The circuit of Fig. 1' in text
     for stage in ('identification', 'fitting', 'closed loop', 'model analysis', 'report'):
         assert stage in s['wall_time_s']
     assert 'report:' in stdout and 'paper (9 sets)' in stdout
+
+
+def test_fig1_duty_cycle_through_the_nodes(demo):
+    """The duty cycle's bags against what the circuit must do, from outside the controller:
+    the margin at its 25 bar set-point where the pump can hold it; with every command beyond
+    the pump, the pump at its full-displacement flow V_p f_p, the priority steering fed in
+    full, and the rest shared as each compensator kind shares it (pre: the highest load,
+    the boom, starves and the motor keeps its flow; post: boom and motor slowed in the same
+    proportion); the line pressure never above the relief valve's full-open pressure; the
+    throttling power lost positive, the loads' share of the pump's energy below one."""
+    from hydropump_sim.params import load_params
+
+    from ..conftest import ROOT
+    _, _, s = demo
+    p = load_params(ROOT / 'config' / 'pump.yaml')
+    runs = s['fig1']
+    assert set(runs) == {'fig1_emc_pre', 'fig1_emc_post'}
+    for name, f in runs.items():
+        assert f['margin_error'] <= 4.0e5, (name, f['margin_error'])
+        assert f['pump_flow_saturated'] >= 0.9 * p.Q_max, (name, f['pump_flow_saturated'])
+        assert f['delivered']['steering'] >= 0.95, (name, f['delivered'])
+        assert f['p_peak'] <= p.relief.p_full + 1.0e5, (name, f['p_peak'])
+        assert f['loss_mean'] > 0.0 and 0.5 < f['efficiency'] < 1.0, (name, f)
+    pre, post = runs['fig1_emc_pre']['delivered'], runs['fig1_emc_post']['delivered']
+    assert pre['motor'] >= 0.95 and pre['boom'] <= 0.8, pre
+    assert post['boom'] <= 0.9 and abs(post['boom'] - post['motor']) <= 0.05, post

@@ -56,7 +56,7 @@ overrides: {spool.mc: 1.0}
     assert 'duration = -1' in text
     assert "model = 'coarse'" in text
     assert 'inputs.current.steps: times must increase' in text
-    assert 'inputs.pressure: unknown signal' in text
+    assert 'inputs.pressure: unknown input (did you mean inputs.load_pressure?)' in text
     assert 'inputs.aperture.sine: expected amplitude and frequency' in text
     assert 'did you mean spool.m_c' in text
 

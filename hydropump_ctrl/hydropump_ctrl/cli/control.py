@@ -218,9 +218,10 @@ def cmd_design(args) -> int:
                else f'controller_{Path(args.circuit).stem}.yaml')
     out = output_file(args.out or plant.with_name(default), PARAMS_SUFFIXES,
                       'params file', create=not args.dry_run)
-    protect_output(out, [plant, *([args.profile] if args.profile else []),
-                         *([args.circuit] if args.circuit else []),
-                         *([args.from_fit] if args.from_fit else [])], 'params file')
+    if not args.dry_run:  # nothing is written then
+        protect_output(out, [plant, *([args.profile] if args.profile else []),
+                             *([args.circuit] if args.circuit else []),
+                             *([args.from_fit] if args.from_fit else [])], 'params file')
     params = load_params(plant)
     profile, prof_path = design_profile(args, params)
     signal = base.get('controller.flow_signal', General().flow_signal)

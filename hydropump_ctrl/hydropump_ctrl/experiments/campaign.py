@@ -16,7 +16,6 @@ before and after that is here, pure:
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 import json
 from pathlib import Path
 import time
@@ -31,6 +30,7 @@ from hydropump_sim.sensors import SensorProfile
 
 from ..ident import Recording
 from .closed_loop import disturbance_figures, trim_current
+from .experiment import EXCITATION_BASE, Experiment  # noqa: F401 (users import them here)
 
 IDENT_TOPICS = ['solenoid_current', 'solenoid_current_cmd', 'line_flow', 'pump_flow',
                 'joint_states', 'line_pressure', 'load_pressure', 'actuator_pressure']
@@ -43,65 +43,11 @@ BESIDE = 'Fig. 1 (beside): '
 
 # ---- experiments ----------------------------------------------------------------------------
 
-@dataclass
-class Experiment:
-    """One run through the graph: live parameters, topics to record, schedule of changes.
-
-    Attributes
-    ----------
-    name, label : str
-        Bag name; one line for the progress and the report.
-    duration : float
-        Simulated time [s], counted from the experiment's start.
-    sim, ctrl : dict
-        Live parameters of the simulator (the operating point, initial current and noise
-        seed, applied by its ``~/reset``) and of the controller, set before the start.
-    topics : list of str
-        Topics the experiment needs recorded.
-    events : list
-        ``(t, node, {param: value})``: parameters set on a node ``t`` seconds after the start.
-    preroll : float
-        Simulated time [s] run before the start and not recorded, for a closed loop to settle
-        on its initial reference.
-    ctrl_first : dict
-        Controller parameters set before ``ctrl`` (a configuration from which ``ctrl``, set
-        one parameter at a time, passes the controller's checks).
-
-    A controller change in ``events`` takes effect at the control instant ``t`` exactly (the
-    graph pauses one control period before it, once the controller has answered there); a
-    simulator change is held from ``t``.
-    """
-
-    name: str
-    label: str
-    duration: float
-    sim: dict
-    ctrl: dict
-    topics: list
-    events: list = field(default_factory=list)
-    preroll: float = 0.0
-    ctrl_first: dict = field(default_factory=dict)
-
-    def bag(self, folder: str | Path) -> Path:
-        """The run's bag in ``folder``: named after the experiment."""
-        return Path(folder) / self.name
-
-
 def operating_point(params: Params, current: float, seed: int = 0, **inputs) -> dict:
     """The simulator's live parameters of an experiment: the whole operating point, since
     the graph keeps what the previous experiment left."""
     return {'initial_current': float(current), 'line.P_u': params.line.P_u,
             'line.xi_u': params.line.xi_u, 'sensors.seed': seed, **inputs}
-
-
-#: Set on the controller before an experiment's own excitation (:attr:`Experiment.ctrl_first`):
-#: the controller checks each parameter against the others, one at a time, so an excitation
-#: cannot always follow the one before directly (levels of 35..65 % after levels of
-#: 0.4..0.6 A, or the other way round). From this configuration, a sine of zero amplitude
-#: whose levels are not checked against each other, every excitation can, when its
-#: ``excitation.signal`` comes last.
-EXCITATION_BASE = {'excitation.amplitude': 0.0, 'excitation.offset': 0.0,
-                   'excitation.relative': False, 'excitation.signal': 'sine'}
 
 
 #: The nine identification sets: (step size, centre) of a growing-flow staircase in % of

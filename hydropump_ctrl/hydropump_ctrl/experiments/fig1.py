@@ -5,7 +5,7 @@ hydromechanical compensator, with pre- and post-compensated sections.
 :data:`DUTY` is one operator's cycle of 4 s (:data:`PHASES`): the priority steering alone;
 the boom switched on; the motor switched on above it; the boom's load rising through the
 motor's; every command at its maximum, asking more than the pump's maximum flow; the boom
-switched off. :func:`fig1_experiments` makes one :class:`~.campaign.Experiment` of it per
+switched off. :func:`fig1_experiments` makes one :class:`~.experiment.Experiment` of it per
 control and compensator kind (:data:`VARIANTS`), all on one simulator: the compensator kind
 and the pump's compensator are the simulator's live ``circuit_sets``, the operator's
 commands and the boom's force its ``inputs.<name>`` parameters, set at their instants.
@@ -34,7 +34,7 @@ import numpy as np
 
 from hydropump_sim.sensors import SensorProfile
 
-from .campaign import EXCITATION_BASE, Experiment
+from .experiment import EXCITATION_BASE, Experiment
 
 #: The loads of Fig. 1 (section names in fig1.yaml).
 LOADS = ('steering', 'boom', 'motor')

@@ -127,12 +127,14 @@ class Declarer:
             self.node.declare_parameter(s.name, value, descriptor(s, not s.live),
                                         ignore_override=True)
 
-    def finish(self, partial: bool = False) -> None:
-        """Raise :class:`StartupError` for every problem, and (unless ``partial``: more is
-        declared later) for every override that names no parameter of the node (probably a
-        typo)."""
+    def finish(self, pending: tuple[str, ...] = ()) -> None:
+        """Raise :class:`StartupError` for every problem, and for every override that names
+        no parameter of the node (probably a typo) but those under a ``pending`` prefix
+        (declared later, once known)."""
         known = set(self.specs) | set(BUILTIN)
-        for name in self.given if not partial else ():
+        for name in self.given:
+            if pending and name.startswith(pending):
+                continue
             if name not in known and not name.startswith('qos_overrides.'):
                 self.errors.append(unknown_key_line(name, sorted(known),
                                                     f'parameter of node {self.node.get_name()}'))

@@ -114,7 +114,7 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
                      for line in check_all(Params, overrides)[1] if 'unknown' in line]
         params = d.declare(Params, {**plant, **overrides}, source=plant_file)
         sensors = d.declare(SensorConfig, profile.flat(), source=cfg.sensor_profile or None)
-        d.finish(partial=True)
+        d.finish(pending=(INPUTS,))  # the circuit's inputs are known once it is read
         errors = cfg.plant_checks(params)
         if errors:
             raise bridge.StartupError(errors)
