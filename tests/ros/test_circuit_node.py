@@ -1,0 +1,168 @@
+"""The simulator node running the circuit of Fig. 1, as a user starts it (the installed
+executable with ``circuit_file``): its load topics and commands, its operator inputs as live
+parameters, ``circuit_sets`` live from the next reset, and a bad circuit file.
+
+The truth is the pre-compensated section's closed form: its compensator holds ``dp_set``
+across the directional valve, so the boom takes ``C_d A_max xi sqrt(2 dp_set / rho)``
+whatever its load and the pump's pressure, as long as the pump keeps the margin (here the
+hydromechanical load-sensing pump does)."""
+
+import math
+import subprocess
+
+import numpy as np
+import pytest
+
+from ..conftest import ROOT
+from .rosutil import call, executable, spin_until, wait_for_publisher, wait_for_subscriber
+
+pytestmark = pytest.mark.ros
+
+FIG1 = ROOT / 'config' / 'circuits' / 'fig1.yaml'
+# The boom section of config/circuits/fig1.yaml and the oil of config/pump.yaml, read here
+# as a user reads them: the figures the closed form needs.
+C_D, RHO = 0.65, 870.0
+BOOM_A_MAX, BOOM_DP_SET = 2.2e-5, 1.0e6
+LS_PUMP = 'pump.type=ls_pump pump.ls.margin=2500000.0'
+
+
+def boom_flow(xi: float) -> float:
+    return C_D * BOOM_A_MAX * xi * math.sqrt(2 * BOOM_DP_SET / RHO)
+
+
+def _param(name, value):
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    if isinstance(value, str):
+        v = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value)
+    else:
+        v = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=float(value))
+    return Parameter(name=name, value=v)
+
+
+class Flow:
+    """A load's flow topic (``loads/<load>/flow``), sample by sample."""
+
+    def __init__(self, node, load='boom'):
+        from std_msgs.msg import Float64
+        self.load = load
+        self.samples = []
+        node.create_subscription(Float64, f'loads/{load}/flow',
+                                 lambda m: self.samples.append(m.data), 100)
+
+    def settled(self, node, target=None, timeout=60.0, window=40, each=lambda: None):
+        """The median of the last ``window`` samples once they agree to 1 % (and lie within
+        10 % of ``target``, if given); ``each`` is called at every spin (to keep publishing
+        a command: one message may go out before the node has matched the publisher)."""
+        def done():
+            each()
+            v = np.array(self.samples[-window:])
+            if len(v) < window or np.median(v) <= 0.0:
+                return False
+            near = target is None or abs(np.median(v) - target) < 0.1 * target
+            return near and np.ptp(v) < 0.01 * np.median(v)
+        spin_until(node, done, timeout, f'the {self.load} flow to settle' + (
+            f' near {target:.3g} m^3/s' if target else ''))
+        return float(np.median(self.samples[-window:]))
+
+
+def test_fig1_boom_flow_from_its_command_topic_and_its_live_input(nodes, test_node):
+    from rcl_interfaces.srv import SetParameters
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64
+    nodes.start('simulator', '-p', f'circuit_file:={FIG1}', '-p', f'circuit_sets:={LS_PUMP}')
+    flow = Flow(test_node)
+    joints = []
+    test_node.create_subscription(JointState, 'joint_states', joints.append, 10)
+    cmd = test_node.create_publisher(Float64, 'loads/boom/command', 10)
+    setp = test_node.create_client(SetParameters, 'simulator/set_parameters')
+    wait_for_subscriber(test_node, 'loads/boom/command')
+    wait_for_publisher(test_node, 'loads/boom/flow')
+
+    # The command topic: 0.6 open.
+    spin_until(test_node, lambda: cmd.publish(Float64(data=0.6)) or
+               (joints and _opening(joints[-1], 'boom.valve') > 0.59), 60,
+               'the boom valve to open to 0.6')
+    q = flow.settled(test_node, boom_flow(0.6), each=lambda: cmd.publish(Float64(data=0.6)))
+    assert q == pytest.approx(boom_flow(0.6), rel=0.02)
+
+    # The live operator input: the same input, now 0.3 as a parameter, halves it.
+    res = call(test_node, setp, SetParameters.Request(
+        parameters=[_param('inputs.boom.command', 0.3)])).results[0]
+    assert res.successful, res.reason
+    spin_until(test_node, lambda: _opening(joints[-1], 'boom.valve') < 0.31, 30,
+               'the boom valve to close to 0.3')
+    flow.samples.clear()
+    q_half = flow.settled(test_node, boom_flow(0.3))
+    assert q_half == pytest.approx(boom_flow(0.3), rel=0.02)
+    assert q_half / q == pytest.approx(0.5, rel=0.03)
+
+    # joint_states names every valve spool and actuator of the circuit.
+    names = set(joints[-1].name)
+    assert {'steering.valve', 'boom.valve', 'boom.cylinder', 'motor.valve',
+            'motor.motor'} <= names
+
+    # A bad value of an operator input is refused with its range.
+    bad = call(test_node, setp, SetParameters.Request(
+        parameters=[_param('inputs.boom.command', 1.5)])).results[0]
+    assert not bad.successful and 'inputs.boom.command' in bad.reason
+
+
+def _opening(msg, joint):
+    return msg.position[list(msg.name).index(joint)]
+
+
+def test_fig1_circuit_sets_live_from_the_next_reset(nodes, test_node):
+    """Switched live to post-compensated sections (flow sharing): every metering edge then
+    sees the same drop, so the boom and the motor take flows in the ratio of their valves'
+    areas (2.2 : 1.8 at equal commands), whatever that drop. A change of the topics (a
+    cylinder made a motor) is refused, with why."""
+    from rcl_interfaces.srv import SetParameters
+    from std_msgs.msg import Float64
+    from std_srvs.srv import Trigger
+    nodes.start('simulator', '-p', f'circuit_file:={FIG1}', '-p', f'circuit_sets:={LS_PUMP}')
+    boom, motor = Flow(test_node, 'boom'), Flow(test_node, 'motor')
+    cmds = [test_node.create_publisher(Float64, f'loads/{n}/command', 10)
+            for n in ('boom', 'motor')]
+    setp = test_node.create_client(SetParameters, 'simulator/set_parameters')
+    reset = test_node.create_client(Trigger, 'simulator/reset')
+    wait_for_subscriber(test_node, 'loads/motor/command')
+    wait_for_publisher(test_node, 'loads/motor/flow')
+
+    def set_sets(text):
+        return call(test_node, setp, SetParameters.Request(
+            parameters=[_param('circuit_sets', text)]), timeout=120).results[0]
+
+    refused = set_sets(LS_PUMP + ' boom.actuator=motor')
+    assert not refused.successful and 'boom' in refused.reason and 'motor' in refused.reason
+    unknown = set_sets(LS_PUMP + ' boom.compensatr=post')
+    assert not unknown.successful and 'did you mean compensator' in unknown.reason
+
+    post = set_sets(LS_PUMP + ' boom.compensator=post motor.compensator=post')
+    assert post.successful, post.reason
+    assert call(test_node, reset, Trigger.Request()).success
+
+    def publish():
+        for c in cmds:
+            c.publish(Float64(data=0.4))
+    # 0.4 each: with the steering's 6 L/min well inside the pump's 67.5 L/min.
+    motor.samples.clear()
+    spin_until(test_node, lambda: publish() or (motor.samples and motor.samples[-1] > 1e-4),
+               60, 'the motor to take flow')
+    q_motor = motor.settled(test_node, each=publish)
+    q_boom = boom.settled(test_node, each=publish)
+    assert q_boom / q_motor == pytest.approx(2.2 / 1.8, rel=0.02)
+    # Not the pre-compensated flow: the drop is now the pump's margin less dp_set.
+    assert q_boom > 1.05 * boom_flow(0.4)
+
+
+def test_a_bad_circuit_file_exits_with_one_line_naming_the_component(tmp_path, ros_domain):
+    text = FIG1.read_text().replace('plant: ../pump.yaml', f'plant: {ROOT / "config"}/pump.yaml')
+    boom_ports = 'ports: {supply: demand, tank: tank, load: boom_load, sense: boom_ls, ls: ls}'
+    assert boom_ports in text
+    bad = tmp_path / 'fig1.yaml'
+    bad.write_text(text.replace(boom_ports, boom_ports.replace(' tank: tank,', '')))
+    proc = subprocess.run([executable('simulator'), '--ros-args', '-p',
+                           f'circuit_file:={bad}'], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and 'Traceback' not in proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and 'boom: port tank is not connected' in lines[0], proc.stderr
