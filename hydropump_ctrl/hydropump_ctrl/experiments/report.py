@@ -139,25 +139,28 @@ def report_sections(ident, truth, rows, loops, modal, analysis_text, hyst, walls
 def _fig1_text(duty) -> str:
     from . import fig1
     results, pngs = duty
+    settled = fig1.SETTLED[0][1] - fig1.SETTLED[0][0]
+    sat, before = fig1.SATURATED, fig1.BEFORE
     return (
         '<p>The circuit of config/circuits/fig1.yaml: the pump and its relief valve (250 bar) '
         'feeding a priority steering cylinder behind a priority valve, and a boom cylinder '
         'and a motor on demand with pressure compensators before their valves (pre) or '
         'after them (post, flow sharing); a shuttle network senses the highest load. One '
-        'operator cycle of 6 s, through the simulator (the bench sensors, no dither), the '
-        'controller (config/controller_fig1.yaml, margin mode against the load-sensing '
-        'pressure, 25 bar) and the recorder, after a 1 s settling run: '
+        f'operator cycle of {fig1.DURATION:g} s, through the simulator (the bench sensors, no '
+        'dither), the controller (config/controller_fig1.yaml, margin mode against the '
+        f'load-sensing pressure, {fig1.MARGIN / 1e5:g} bar) and the recorder, after a '
+        f'{fig1.PREROLL:g} s settling run: '
         + '; '.join(f'{a:g} s {n}' for n, a, _ in fig1.PHASES) + '. The hydromechanical '
         'rows put the classic load-sensing compensator on the pump instead of the solenoid '
-        '(its spring at the same 25 bar).</p>'
-        '<p>Margin error: mean |P_l - P_LS - 25 bar| over the last 0.3 s of each phase the '
-        'pump can serve (20 ms means); worst: the largest 20 ms mean outside the saturated '
-        "phase. Delivered / demanded: each load's flow over the flow it took unsaturated in "
-        'the 0.5 s before, scaled by its command, in the last 0.5 s of the demand beyond the '
-        "pump. Throttling loss: P_l Q_p - sum P_i Q_i over the cycle (the relief's "
-        "included); to the loads: the loads' share of the pump's hydraulic energy. Flows "
-        "are moved back by the flow sensors' configured 55 ms to line up with the "
-        'pressures.</p>'
+        f'(its spring at the same {fig1.MARGIN / 1e5:g} bar).</p>'
+        f'<p>Margin error: mean |P_l - P_LS - {fig1.MARGIN / 1e5:g} bar| over the last '
+        f'{settled:g} s of each phase the pump can serve (20 ms means); worst: the largest '
+        "20 ms mean outside the saturated phase. Delivered / demanded: each load's flow "
+        f'over {sat[0]:g}-{sat[1]:g} s (the demand beyond the pump) over the flow it took '
+        f'unsaturated over {before[0]:g}-{before[1]:g} s, scaled by its command. Throttling '
+        "loss: P_l Q_p - sum P_i Q_i over the cycle (the relief's included); to the loads: "
+        "the loads' share of the pump's hydraulic energy. Flows are moved back by the flow "
+        "sensors' configured delay to line up with the pressures.</p>"
         + _table(fig1.TABLE_HEAD, fig1.table_rows(results))
         + ''.join(_img(p) for p in pngs))
 
