@@ -190,18 +190,47 @@ def _shifted(y: np.ndarray, m: int, step: int = 1) -> tuple[np.ndarray, ...]:
 
 def _best_shift(parts, oks, lo_k: int, hi_k: int, offset: bool) -> int:
     """The whole-sample shift (of the model grid) in ``[lo_k, hi_k]`` with the least
-    weighted sum of squares."""
+    weighted sum of squares.
+
+    Every sum over the samples is a correlation of the measured samples (placed on the
+    model grid) with the model, clamped at its ends: all shifts at once by FFT
+    (``sum r^2 = sum y^2 - 2 sum y m + sum m^2`` and ``sum r``, per shift). Only the best
+    shift is kept, and :func:`best_delay` refines around it exactly."""
+    from scipy.signal import fftconvolve
     ks = np.arange(lo_k, hi_k + 1)
+    left = max(hi_k, 0)
     sse = np.zeros(ks.size)
     tot = np.zeros(ks.size)
     w_sum = 0.0
     for (y, meas, _, sg, step), ok in zip(parts, oks):
         idx = np.flatnonzero(ok)
-        shifted = y[np.clip(step * idx[None, :] - ks[:, None], 0, y.size - 1)]
-        r = shifted - meas[idx][None, :]
-        sse += (r * r).sum(axis=1) / sg ** 2
-        tot += r.sum(axis=1) / sg ** 2
-        w_sum += idx.size / sg ** 2
+        if not idx.size:
+            continue
+        # A constant off both changes no residual and keeps the sums small.
+        c = float(np.mean(meas[idx]))
+        m = meas[idx] - c
+        # The model grid's sample j = step i holds the measured sample i; the model is
+        # held at its ends beyond them.
+        j = step * idx
+        span = int(j[-1]) + 1
+        right = max(-lo_k, 0) + max(span - y.size, 0)
+        ext = np.concatenate([np.full(left, y[0]), y, np.full(right, y[-1])]) - c
+        W = np.zeros(span)
+        M = np.zeros(span)
+        np.add.at(W, j, 1.0)
+        np.add.at(M, j, m)
+
+        def corr(a, b, span=span):
+            # sum_j a[j] b[j - k + left] for every k in ks.
+            full = fftconvolve(b, a[::-1], mode='full')
+            return full[span - 1 + left - ks]
+        yy = corr(W, ext * ext)
+        ym = corr(M, ext)
+        y1 = corr(W, ext)
+        w = 1.0 / sg ** 2
+        sse += w * (yy - 2.0 * ym + float(m @ m))
+        tot += w * (y1 - float(m.sum()))
+        w_sum += idx.size * w
     if offset and w_sum > 0:
         sse -= tot ** 2 / w_sum
     return int(ks[int(np.argmin(sse))])
