@@ -9,6 +9,7 @@ hydromechanical load-sensing pump does)."""
 
 import math
 import subprocess
+import time
 
 import numpy as np
 import pytest
@@ -79,13 +80,19 @@ def test_fig1_boom_flow_from_its_command_topic_and_its_live_input(nodes, test_no
     wait_for_publisher(test_node, 'loads/boom/flow')
 
     # The command topic: 0.6 open.
-    spin_until(test_node, lambda: cmd.publish(Float64(data=0.6)) or
+    open_boom = Every(0.05, lambda: cmd.publish(Float64(data=0.6)))
+    spin_until(test_node, lambda: open_boom() or
                (joints and _opening(joints[-1], 'boom.valve') > 0.59), 60,
                'the boom valve to open to 0.6')
-    q = flow.settled(test_node, boom_flow(0.6), each=lambda: cmd.publish(Float64(data=0.6)))
+    q = flow.settled(test_node, boom_flow(0.6), each=open_boom)
     assert q == pytest.approx(boom_flow(0.6), rel=0.02)
 
-    # The live operator input: the same input, now 0.3 as a parameter, halves it.
+    # The live operator input: the same input, now 0.3 as a parameter, halves it. The
+    # publisher leaves first, so that no command in flight overrides the parameter.
+    test_node.destroy_publisher(cmd)
+    spin_until(test_node, lambda: test_node.count_publishers('loads/boom/command') == 0, 20,
+               'the command publisher to leave')
+    _spin_for(test_node, 0.5)
     res = call(test_node, setp, SetParameters.Request(
         parameters=[_param('inputs.boom.command', 0.3)])).results[0]
     assert res.successful, res.reason
@@ -105,6 +112,26 @@ def test_fig1_boom_flow_from_its_command_topic_and_its_live_input(nodes, test_no
     bad = call(test_node, setp, SetParameters.Request(
         parameters=[_param('inputs.boom.command', 1.5)])).results[0]
     assert not bad.successful and 'inputs.boom.command' in bad.reason
+
+
+class Every:
+    """Calls ``fn`` at most once every ``period`` s of wall time (returns None)."""
+
+    def __init__(self, period, fn):
+        self.period, self.fn, self.last = period, fn, -math.inf
+
+    def __call__(self):
+        now = time.monotonic()
+        if now - self.last >= self.period:
+            self.last = now
+            self.fn()
+
+
+def _spin_for(node, seconds):
+    import rclpy
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        rclpy.spin_once(node, timeout_sec=0.01)
 
 
 def _opening(msg, joint):
@@ -141,9 +168,10 @@ def test_fig1_circuit_sets_live_from_the_next_reset(nodes, test_node):
     assert post.successful, post.reason
     assert call(test_node, reset, Trigger.Request()).success
 
-    def publish():
+    def publish_all():
         for c in cmds:
             c.publish(Float64(data=0.4))
+    publish = Every(0.05, publish_all)
     # 0.4 each: with the steering's 6 L/min well inside the pump's 67.5 L/min.
     motor.samples.clear()
     spin_until(test_node, lambda: publish() or (motor.samples and motor.samples[-1] > 1e-4),
