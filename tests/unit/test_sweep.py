@@ -1,0 +1,227 @@
+"""``hydropump sweep``: parameter sweeps on Dask distributed.
+
+Truth from outside the sweep code: eq. 14 (tau = S_a (1 + K_c/K_a) / (mu_a sqrt(P_a)) at a
+fixed operating point: tau proportional to 1/mu_a, independent of the line volume V_l), the
+schema's cross-check of the actuator volume (params.py), and the runs themselves counted
+from the files the sweep leaves.
+"""
+
+import os
+from pathlib import Path
+import re
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from hydropump_ctrl.cli import main
+from hydropump_ctrl.sweep import read_table, run_sweep, sensitivities, sweep_from_dict
+
+ROOT = Path(__file__).resolve().parents[2]
+CONFIG = ROOT / 'config'
+BIN = Path(sys.executable).parent
+
+pytestmark = pytest.mark.timeout(120)
+
+EXPERIMENT = {'duration': 1.5, 'current': {'step': {'from': 0.4, 'to': 0.6, 'at': 0.3}}}
+
+
+def spec(**kw):
+    doc = {'params': 'pump.yaml', 'experiment': EXPERIMENT, 'outputs': ['fopdt']}
+    doc.update(kw)
+    return sweep_from_dict(doc, CONFIG, 'test')
+
+
+@pytest.fixture(scope='module')
+def client():
+    from hydropump_ctrl.sweep import open_client
+    c, cluster = open_client(None, 2)
+    yield c
+    c.close()
+    cluster.close()
+
+
+def test_tau_moves_as_one_over_mu_a(client, tmp_path):
+    sw = spec(grid={'relative': True, 'parameters': {'actuator.mu_a': [0.9, 1.0, 1.1]}})
+    run_sweep(sw, tmp_path, client=client, progress=False, report=False)
+    cols = read_table(tmp_path / 'runs.parquet')
+    assert list(cols['status']) == ['ok'] * 3
+    mu = cols['actuator.mu_a']
+    tau = cols['fopdt_tau']
+    # eq. 14: tau * mu_a is the same for every run.
+    for k in (0, 2):
+        assert tau[k] / tau[1] == pytest.approx(mu[1] / mu[k], rel=0.02)
+    assert tau[1] == pytest.approx(0.100, abs=0.003)   # the plant's design point (D2)
+
+
+def test_tornado_names_mu_a_for_tau_and_not_the_line_volume(client, tmp_path):
+    # eq. 14 has no V_l: the line pole (~3.6 ms) is far faster than tau (100 ms).
+    sw = spec(latin_hypercube={'n': 12, 'seed': 3, 'relative': True,
+                               'bounds': {'actuator.mu_a': [0.85, 1.15],
+                                          'line.V_l': [0.7, 1.3]}})
+    run_sweep(sw, tmp_path, client=client, progress=False, report=True)
+    cols = read_table(tmp_path / 'runs.parquet')
+    s = sensitivities(sw, cols)['fopdt_tau']['src']
+    assert s['actuator.mu_a'] < -0.9          # more orifice, faster
+    assert abs(s['line.V_l']) < 0.1
+    html = (tmp_path / 'report.html').read_text()
+    assert 'tornado' in html and html.count('data:image/png') >= 3
+
+
+def _v_a0_spec():
+    # The schema refuses an actuator volume that leaves no more than V_a_min at full stroke.
+    return spec(grid={'parameters': {'actuator.V_a0': [8.0e-6, 2.0e-6, 7.0e-6]}},
+                outputs=[{'peak': 'P_l'}, {'final': 'q_l'}])
+
+
+def test_a_refused_run_is_recorded_and_the_sweep_goes_on_and_resumes(client, tmp_path):
+    from hydropump_sim import load_params
+    p = load_params(CONFIG / 'pump.yaml')
+    left = np.array([8.0e-6, 2.0e-6, 7.0e-6]) - p.actuator.S_a * p.x_a_stop
+    refused = left <= p.actuator.V_a_min
+    assert list(refused) == [False, True, False]
+
+    res = run_sweep(_v_a0_spec(), tmp_path, client=client, progress=False, report=True)
+    assert (res.executed, res.reused, res.failed) == (3, 0, 1)
+    cols = read_table(tmp_path / 'runs.parquet')
+    assert list(cols['status']) == ['ok', 'failed', 'ok']
+    assert 'V_a_min' in cols['reason'][1] and cols['reason'][0] == ''
+    assert np.isnan(cols['peak_P_l'][1]) and np.all(np.isfinite(cols['peak_P_l'][[0, 2]]))
+    # Steady flow at 60 % displacement: 0.6 V_p f_p, whatever the actuator volume.
+    assert cols['final_q_l'][[0, 2]] == pytest.approx(0.6 * p.Q_max, rel=0.01)
+
+    stamps = {f.name: f.stat().st_mtime_ns for f in (tmp_path / 'runs').iterdir()}
+    again = run_sweep(_v_a0_spec(), tmp_path, client=client, progress=False, report=False)
+    assert (again.executed, again.reused) == (0, 3)
+    assert stamps == {f.name: f.stat().st_mtime_ns for f in (tmp_path / 'runs').iterdir()}
+    (tmp_path / 'runs' / '000002.json').unlink()
+    third = run_sweep(_v_a0_spec(), tmp_path, client=client, progress=False, report=False)
+    assert (third.executed, third.reused) == (1, 2)
+    assert list(read_table(tmp_path / 'runs.parquet')['status']) == ['ok', 'failed', 'ok']
+
+
+def _start(args):
+    return subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            start_new_session=True)
+
+
+def _stop(proc):
+    # By the id of the process this test started (its session: the worker's child too).
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGTERM)
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(5)
+
+
+def test_same_seed_same_table_on_a_local_cluster_and_on_a_separate_scheduler(client, tmp_path):
+    doc = {'distributions': {'n': 6, 'seed': 7, 'parameters': {
+        'actuator.mu_a': {'normal': 0.05, 'relative': True},
+        'spool.K_a': {'uniform': 0.05, 'relative': True}}},
+        'outputs': ['fopdt', 'step', {'peak': 'P_l'}]}
+    run_sweep(spec(**doc), tmp_path / 'local', client=client, progress=False, report=False)
+
+    sched = _start([str(BIN / 'dask'), 'scheduler', '--port', '0', '--no-dashboard',
+                    '--host', '127.0.0.1'])
+    worker = None
+    try:
+        address, t0 = None, time.monotonic()
+        while address is None and time.monotonic() - t0 < 30:
+            line = sched.stdout.readline()
+            m = re.search(r'Scheduler at:\s+(tcp://\S+)', line)
+            address = m.group(1) if m else None
+        assert address, 'the scheduler did not report its address'
+        worker = _start([str(BIN / 'dask'), 'worker', address, '--nworkers', '1',
+                         '--nthreads', '1', '--no-dashboard'])
+        from dask.distributed import Client
+        with Client(address, timeout=10, set_as_default=False) as c:
+            c.wait_for_workers(1, timeout=30)
+            run_sweep(spec(**doc), tmp_path / 'remote', address=address, progress=False,
+                      report=False)
+    finally:
+        for proc in (worker, sched):
+            if proc is not None:
+                _stop(proc)
+    a = read_table(tmp_path / 'local' / 'runs.parquet')
+    b = read_table(tmp_path / 'remote' / 'runs.parquet')
+    assert list(a['status']) == ['ok'] * 6
+    for name in a:
+        if name not in ('wall_s', '__units__'):    # wall time is the only one that may differ
+            np.testing.assert_array_equal(a[name], b[name], err_msg=name)
+
+
+def _cli(capsys, *argv):
+    code = main(['sweep', *map(str, argv)])
+    return code, capsys.readouterr().err.strip().splitlines()
+
+
+BAD = {
+    'unknown': ({'grid': {'parameters': {'actuator.mu': [1.0e-6]}}},
+                'did you mean actuator.mu_a?'),
+    'range': ({'latin_hypercube': {'n': 4, 'bounds': {'actuator.mu_a': [1.0e-10, 1.0e-5]}}},
+              'outside the accepted range'),
+    'zero': ({'distributions': {'n': 0, 'parameters': {'line.V_l': {'normal': 0.05}}}},
+             'zero samples'),
+}
+
+
+@pytest.mark.parametrize('case', list(BAD))
+def test_bad_specs_give_one_line_and_exit_2(case, tmp_path, capsys):
+    import yaml
+    body, text = BAD[case]
+    doc = {'params': str(CONFIG / 'pump.yaml'), 'experiment': EXPERIMENT, 'outputs': ['fopdt'],
+           **body}
+    path = tmp_path / 'bad.yaml'
+    path.write_text(yaml.safe_dump(doc))
+    code, err = _cli(capsys, path, '--out', tmp_path / 'o', '--no-progress')
+    assert code == 2
+    assert len(err) == 1 and err[0].startswith('error:') and text in err[0], err
+    assert not (tmp_path / 'o').exists()     # refused before any run
+
+
+def test_unwritable_out_and_unreachable_scheduler(tmp_path, capsys):
+    (tmp_path / 'file').write_text('')
+    code, err = _cli(capsys, CONFIG / 'sweeps' / 'tolerance.yaml', '--out',
+                     tmp_path / 'file' / 'sub', '--no-progress')
+    assert code == 2 and len(err) == 1 and 'cannot write' in err[0], err
+    t0 = time.monotonic()
+    address = 'tcp://127.0.0.1:9'
+    code, err = _cli(capsys, CONFIG / 'sweeps' / 'tolerance.yaml', '--scheduler', address,
+                     '--out', tmp_path / 'o', '--no-progress')
+    assert time.monotonic() - t0 < 10.0
+    assert code == 2 and len(err) == 1 and address in err[0], err
+    assert not list((tmp_path / 'o' / 'runs').glob('*.json'))
+
+
+def test_a_worker_killed_mid_sweep_loses_no_run(client, tmp_path):
+    import threading
+    sw = spec(latin_hypercube={'n': 40, 'seed': 5, 'relative': True,
+                               'bounds': {'actuator.mu_a': [0.9, 1.1]}},
+              outputs=[{'final': 'q_l'}])
+    killed = []
+
+    def kill_one():
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 20:
+            n = len(list((tmp_path / 'runs').glob('*.json')))
+            if n >= 4:
+                pid = next(iter(client.run(os.getpid).values()))  # a worker of this cluster
+                os.kill(pid, signal.SIGKILL)
+                killed.append(len(list((tmp_path / 'runs').glob('*.json'))))
+                return
+            time.sleep(0.005)
+
+    th = threading.Thread(target=kill_one)
+    th.start()
+    res = run_sweep(sw, tmp_path, client=client, batch=1, progress=False, report=False)
+    th.join()
+    assert killed and killed[0] < 40, 'no worker was killed in the middle of the sweep'
+    assert res.executed == 40 and res.failed == 0
+    cols = read_table(tmp_path / 'runs.parquet')
+    assert list(cols['run_id']) == list(range(40)) and set(cols['status']) == {'ok'}
+    assert len(list((tmp_path / 'runs').glob('*.json'))) == 40
