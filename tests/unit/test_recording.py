@@ -505,16 +505,40 @@ def test_signals_can_be_chosen_and_a_chosen_one_must_be_there(tmp_path):
 
 
 def test_an_undecodable_signal_is_left_out_with_a_note(tmp_path):
+    from hydropump_ctrl.recorder.bag import BagWriter, qos_profile
+    t, cur, flow = _signals(1000)
+    ts = typestore()
+    F = ts.types[F64]
+    # joint_states of the right type whose payloads are not CDR (a corrupt publisher).
+    with BagWriter(tmp_path / 'bag', compression='none') as w:
+        for topic, msgtype in (('/solenoid_current', F64), ('/line_flow', F64),
+                               ('/joint_states', 'sensor_msgs/msg/JointState')):
+            w.add_topic(topic, msgtype, [qos_profile()])
+        for k, tk in enumerate(t):
+            ns = int(round(tk * 1e9))
+            w.write('/solenoid_current', ns, ts.serialize_cdr(F(data=cur[k]), F64))
+            w.write('/line_flow', ns, ts.serialize_cdr(F(data=flow[k]), F64))
+            w.write('/joint_states', ns, b'\x00\x01')
+    rec = read_recording(tmp_path / 'bag')
+    assert 'spool_position' not in rec and 'actuator_position' not in rec
+    assert any('spool_position, actuator_position left out' in n and 'cannot decode' in n
+               for n in rec.notes)
+    with pytest.raises(BagError, match='cannot decode /joint_states'):
+        read_recording(tmp_path / 'bag', signals=['spool_position'])
+
+
+def test_a_contract_topic_of_another_type_is_refused(tmp_path):
+    # Read as numbers all the same, a Float64 joint_states would pass for positions.
     t, cur, flow = _signals(1000)
     write_bag(tmp_path / 'bag', {'/solenoid_current': (F64, t, cur),
                                  '/line_flow': (F64, t, flow),
                                  '/joint_states': (F64, t, flow)})
-    rec = read_recording(tmp_path / 'bag')
-    assert 'spool_position' not in rec and 'actuator_position' not in rec
-    assert any('spool_position, actuator_position left out' in n and 'JointState' in n
-               for n in rec.notes)
-    with pytest.raises(BagError, match='is not a sensor_msgs/msg/JointState'):
-        read_recording(tmp_path / 'bag', signals=['spool_position'])
+    for signals in ('all', ['spool_position']):
+        with pytest.raises(BagError, match='is not a sensor_msgs/msg/JointState: wrong '
+                           'message type for spool_position'):
+            read_recording(tmp_path / 'bag', signals=signals)
+    assert set(read_recording(tmp_path / 'bag', signals=None).signals) == {
+        'solenoid_current', 'line_flow'}
 
 
 def test_every_signal_survives_npz_and_bag_round_trips(tmp_path):

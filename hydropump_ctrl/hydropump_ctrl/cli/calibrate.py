@@ -8,6 +8,11 @@ table, or the JSON result with ``--json``. ``validate`` gives the residual (RMS 
 and the fit percentage per signal of a params file on bags it was not fitted to, with
 overlays of the measured signals, the params file's prediction and, with ``--before``, another
 file's.
+
+Both check every bag against the params file before any simulation (a current in mA, a
+pressure in bar or gauge, a flow in L/min, the wrong message type, two runs in one bag, too
+few samples: one ``error:`` line each, exit code 2). A calibration that fits a signal worse
+than its mean (fit % below zero) writes its report but no params file, and exits with 2.
 """
 
 from __future__ import annotations
@@ -43,10 +48,23 @@ def _progress_printer(enabled: bool | None):
     return show
 
 
-def _read(args):
+def _read(args, params):
+    """The bags, each checked against the pump of ``params`` on the signals the model takes
+    (its inputs and the compared outputs)."""
+    from hydropump_sim.measure import CURRENT_SIGNAL, LOAD_PRESSURE_SIGNAL
+
     from ..ident import read_recordings
+    from ..ident.calibrate.data import COMMAND_SIGNAL
+    check = None if args.signals is None else [CURRENT_SIGNAL, COMMAND_SIGNAL,
+                                               LOAD_PRESSURE_SIGNAL, *args.signals]
     return read_recordings(args.bags, allow_truncated=args.allow_truncated,
-                           progress=args.progress)
+                           progress=args.progress, params=params, check=check)
+
+
+def _negative_fits(fit: dict) -> list[tuple[str, str, float]]:
+    """``(recording, signal, fit %)`` of every fit below zero, worst first."""
+    return sorted(((e, s, v) for e, per in fit.items() for s, v in per.items() if v < 0.0),
+                  key=lambda x: x[2])
 
 
 def _common(p) -> None:
@@ -132,7 +150,13 @@ def _priors(args):
 
 
 def cmd_calibrate(args) -> int:
-    from ..ident.calibrate import calibrate, fit_table, write_calibration_report, write_params
+    from ..ident.calibrate import (
+        calibrate,
+        CalibrationError,
+        fit_table,
+        write_calibration_report,
+        write_params,
+    )
     from ..ident.calibrate.writers import estimate_text
     from ..ident.design import suggest
     priors = _priors(args)
@@ -146,7 +170,7 @@ def cmd_calibrate(args) -> int:
     out = output_file(Path(args.out) if args.out else report / 'calibrated.yaml',
                       PARAMS_SUFFIXES, 'params file')
     base = _plant(plant, args.profile)
-    recs = _read(args)
+    recs = _read(args, base)
     show = _progress_printer(args.progress)
     cal = calibrate(recs, base, args.free, offsets=args.offset, fit_delays=not args.no_delays,
                     signals=args.signals, priors=priors, multistart=not args.no_multistart,
@@ -154,6 +178,16 @@ def cmd_calibrate(args) -> int:
     if show:
         print(file=sys.stderr)
     suggest(cal)
+    bad = _negative_fits(cal.fit)
+    if bad:
+        # A model worse than the signals' means is no calibration: the report says why, and
+        # no params file is left for a simulator to load.
+        write_calibration_report(cal, report, plots=not args.no_plots)
+        e, s, v = bad[0]
+        raise CalibrationError(
+            f'the calibrated model fits {len(bad)} signal(s) worse than their mean (fit % '
+            f'below zero; worst {s} of {e}: {v:.4g} %): no params file written; check the '
+            f'units of the bags and the params file, see {report}/report.md')
     write_params(cal, out, [f'start: {plant}'] + ([f'layered with the plant settings of '
                                                    f'{args.profile}'] if args.profile else []))
     write_calibration_report(cal, report, plots=not args.no_plots)
@@ -197,7 +231,7 @@ def cmd_validate(args) -> int:
     out = run_dir(args.out, 'validate')
     params = _plant(plant, args.profile)
     before = _plant(before_file, args.profile) if before_file else None
-    recs = _read(args)
+    recs = _read(args, params)
     from ..ident.calibrate import validate
     val = validate(recs, params, signals=args.signals, fit_delays=not args.no_delays,
                    before=before)
@@ -210,11 +244,20 @@ def cmd_validate(args) -> int:
             data.update(before=str(before_file), fit_percent_before=val['fit_before'],
                         misfit_before=val['misfit_before'])
         print(json.dumps(data, indent=2))
+        _warn_negative(val['fit'])
         return 0
     print(f'{plant} on {len(recs)} recordings' + (f' (before: {before_file})' if before_file
                                                    else '') + ':\n')
     print(misfit_table(val['misfit'], val.get('misfit_before')))
     print('\nfit %' + (' (before -> after)' if before is not None else '') + ':')
     print(fit_table(val['fit'], val.get('fit_before')))
+    _warn_negative(val['fit'])
     print(f'\nwrote {Path(out) / "validation.md"}')
     return 0
+
+
+def _warn_negative(fit: dict) -> None:
+    """A ``warning:`` line per signal the params file predicts worse than its mean."""
+    for e, s, v in _negative_fits(fit):
+        print(f'warning: {e}: {s} fit {v:.4g} % is below zero: the params file predicts it '
+              'worse than its mean (wrong units, params file or bag?)', file=sys.stderr)

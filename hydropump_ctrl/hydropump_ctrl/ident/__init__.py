@@ -7,7 +7,9 @@ are pooled as the paper does and fitted jointly. Details and the JSON schema:
 
 Modules, each building only on those above it:
 
-- :mod:`.errors` - :class:`BagError`, :class:`FitError`;
+- :mod:`.errors` - :class:`BagError`, :class:`FitError`, :class:`PlausibilityError`;
+- :mod:`.plausibility` - a recording checked against the pump before any fit (units,
+  message types, two runs in one bag, length);
 - :mod:`.model` - eq. 19 and its exact sampled form;
 - :mod:`.signals` - the paper's units, data checks, bounds, dither lines, steps;
 - :mod:`.diagnostics` - residual tests, covariance, flags, :class:`FopdtFit`;
@@ -34,7 +36,7 @@ Pure Python: nothing here imports ROS.
 from ..recorder.bag import write_bag
 from .bags import list_topics, match_topic
 from .diagnostics import FLAG_TEXT, FopdtFit
-from .errors import BagError, FitError
+from .errors import BagError, FitError, PlausibilityError
 from .fit import fit_fopdt, fit_recording, METHODS
 from .model import coefficients, fopdt_response, PAPER, PARAMS
 from .pooling import fit_bags, fit_joint, fit_recordings, Identification, pool, Pooled
@@ -44,7 +46,8 @@ from .signals import detect_dither, Dither, load_default_params, normalise
 
 __all__ = [
     'BagError', 'Dither', 'FLAG_TEXT', 'FitError', 'FopdtFit', 'Identification', 'METHODS',
-    'PAPER', 'PARAMS', 'Pooled', 'Recording', 'SIGNALS', 'coefficients', 'detect_dither',
+    'PAPER', 'PARAMS', 'PlausibilityError', 'Pooled', 'Recording', 'SIGNALS', 'coefficients',
+    'detect_dither',
     'fit_bags', 'fit_fopdt', 'fit_joint', 'fit_recording', 'fit_recordings', 'fopdt_response',
     'format_table', 'list_topics', 'load_default_params', 'match_topic', 'normalise', 'pool',
     'read_recording', 'read_recordings', 'recording_to_bag', 'to_dict', 'to_json',

@@ -216,6 +216,9 @@ def fit_bags(paths: Sequence, *, method: str = 'robust',
         Fit the readable part of a truncated bag (flagged ``truncated_bag``) instead of
         raising :class:`~.errors.BagError`.
 
+    A bag whose current or flow cannot be the pump's (mA, L/min, the wrong message type, two
+    runs, too few samples) raises :class:`~.errors.PlausibilityError` before any fit.
+
     Other parameters are those of :func:`fit_recordings`.
 
     Returns
@@ -225,8 +228,11 @@ def fit_bags(paths: Sequence, *, method: str = 'robust',
         means (the single fit for one bag). ``.recordings`` hold every contract signal the
         bags carry, decoded once.
     """
+    params = load_default_params() if params is None else params
+    # Checked against the pump before the fit, as ``hydropump fit`` does (current, flow).
     recs = read_recordings(paths, current_topic=current_topic, flow_topic=flow_topic,
-                           allow_truncated=allow_truncated, progress=progress)
+                           allow_truncated=allow_truncated, progress=progress, params=params,
+                           check=())
     return fit_recordings(recs, method=method, params=params, start=start,
                           td_bounds=td_bounds, tau_bounds=tau_bounds, joint=joint,
                           progress=progress, allow_flow_filter=allow_flow_filter,

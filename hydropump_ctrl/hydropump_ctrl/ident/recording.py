@@ -41,7 +41,8 @@ from hydropump_sim.measure import SIGNALS as MEASURED
 
 from ..recorder.bag import write_bag
 from .bags import Bag, decode, existing, header_stamps, match_topic, one_line, open_bag, Stream
-from .errors import BagError
+from .errors import BagError, PlausibilityError
+from .plausibility import check_recordings, MIN_SAMPLES, repeated_block, two_runs, wrong_type
 
 DEFAULT_CURRENT_TOPIC = 'solenoid_current'
 DEFAULT_FLOW_TOPIC = 'line_flow'
@@ -305,6 +306,9 @@ _SCALAR_FIELDS = ('data', 'fluid_pressure', 'temperature', 'illuminance', 'range
 # How far a topic's time may fall behind its latest message before the bag counts as holding
 # two runs (a simulator restarted under one recording): late messages are not this late.
 TIME_BACK_NS = 500_000_000
+# What a bag of two runs is told: the fit cannot tell the runs apart, so it is refused.
+TWO_RUNS = ('the bag holds two runs (a restarted simulator): record each run in its own bag '
+            '(restart the recorder with the simulator) and give both bags')
 
 
 def _messages(stream: Stream, where: str) -> tuple[np.ndarray, list, str]:
@@ -314,17 +318,14 @@ def _messages(stream: Stream, where: str) -> tuple[np.ndarray, list, str]:
     st = header_stamps(msgs)
     t, kind = (st, 'header') if st is not None else \
         (np.asarray(stream.log_ns, dtype=np.int64), 'log')
-    if t.size > 1:
-        back = np.maximum.accumulate(t) - t
-        k = int(np.argmax(back))
-        if back[k] > TIME_BACK_NS:
-            first = int(t.min())
-            raise BagError(
-                f'{where}: time goes back on {stream.topic}: message {k + 1} of {t.size} is '
-                f'stamped {(t[k] - first) * 1e-9:.6g} s, after '
-                f'{(int(np.maximum.accumulate(t)[k]) - first) * 1e-9:.6g} s: the bag holds '
-                'more than one run (a restarted simulator); record one run per bag, or cut '
-                'it where time goes back')
+    back = two_runs(t, TIME_BACK_NS)
+    if back is not None:
+        k, tk, latest = back
+        first = int(t.min())
+        raise PlausibilityError(
+            f'{where}: time goes back on {stream.topic} at message {k + 1} of {t.size}: '
+            f'stamped {(tk - first) * 1e-9:.6g} s after {(latest - first) * 1e-9:.6g} s; '
+            f'{TWO_RUNS}')
     return t, msgs, kind
 
 
@@ -359,6 +360,16 @@ def _clean(t_ns: np.ndarray, cols: list[np.ndarray], topic: str, where: str, not
     a NaN or infinite value is an error."""
     order = np.argsort(t_ns, kind='stable')
     t_ns, cols = t_ns[order], [c[order] for c in cols]
+    # A reader that sorts by log time interleaves two runs of one simulator step: the second
+    # run's stamps repeat a stretch of the first's.
+    block = repeated_block(t_ns)
+    if block is not None:
+        k, a, b, n = block
+        raise PlausibilityError(
+            f'{where}: time goes back on {topic} to {(a - t_ns[0]) * 1e-9:.6g} s: {n} '
+            f'messages repeat the times {(a - t_ns[0]) * 1e-9:.6g} s to '
+            f'{(b - t_ns[0]) * 1e-9:.6g} s (from message {k + 1} of {t_ns.size} in time '
+            f'order); {TWO_RUNS}')
     if finite:
         bad = ~np.isfinite(cols[0])
         if bad.any():
@@ -390,7 +401,8 @@ def _grid(tc: np.ndarray, tf: np.ndarray, dt: float | None, where: str, notes: l
         # The flow's own period: the current is held, so it may be published at any rate
         # (a command published on change included).
         if tf.size < 2:
-            raise BagError(f'{where}: too few flow messages to find the sample period')
+            raise PlausibilityError(f'{where}: {tf.size} flow message(s); a fit needs at least '
+                                    f'{MIN_SAMPLES} samples: record longer')
         # The mean of the regular steps (gaps left out) telescopes: exact for stamps on a
         # grid, and within jitter / N for receive times, where the median drifts.
         d = np.diff(tf)
@@ -485,8 +497,17 @@ def _extras(signals, bag: Bag, roles: dict, where: str) -> dict[str, str]:
     for n in names:
         topic = _contract_topic(SIGNALS[n], bag.topics, ns, where, strict)
         if topic is not None and topic not in roles.values():
+            _check_type(where, topic, bag.topics[topic], n, SIGNALS[n])
             out[n] = topic
     return out
+
+
+def _check_type(where: str, topic: str, msgtype: str, signal: str, spec: SignalSpec) -> None:
+    """Refuse a contract topic of another type than the suite publishes it with: read all the
+    same (a ``FluidPressure`` as a flow), its numbers would be taken for what they are not."""
+    line = wrong_type(where, topic, msgtype, signal, spec.msgtype)
+    if line:
+        raise PlausibilityError(line)
 
 
 def read_recording(path: str | Path, *, current_topic: str = DEFAULT_CURRENT_TOPIC,
@@ -537,6 +558,10 @@ def read_recording(path: str | Path, *, current_topic: str = DEFAULT_CURRENT_TOP
              'flow': match_topic(flow_topic, bag.topics, where)}
     if roles['current'] == roles['flow']:
         raise BagError(f'{where}: current and flow are the same topic {roles["current"]}')
+    for topic in roles.values():
+        spec = SIGNALS.get(topic.rsplit('/', 1)[-1])
+        if spec is not None and spec.entry is None:
+            _check_type(where, topic, bag.topics[topic], topic.rsplit('/', 1)[-1], spec)
     extras = _extras(signals, bag, roles, where)
     wanted = {t: match_topic(t, bag.topics, where) for t in topics}
     bag, streams = open_bag(path, sorted({*roles.values(), *extras.values(),
@@ -553,8 +578,9 @@ def read_recording(path: str | Path, *, current_topic: str = DEFAULT_CURRENT_TOP
         data[role] = (t_ns, v, src)
     g, p_ns = _grid(data['current'][0], data['flow'][0], dt, where, notes)
     if g.size < 2:
-        raise BagError(f'{where}: fewer than 2 common samples of {roles["current"]} and '
-                       f'{roles["flow"]}')
+        raise PlausibilityError(f'{where}: {g.size} common sample(s) of {roles["current"]} and '
+                                f'{roles["flow"]}; a fit needs at least {MIN_SAMPLES}: record '
+                                'longer')
     flow_name = _signal_name(roles['flow'], set())
     names = {'current': _signal_name(roles['current'], {flow_name}), 'flow': flow_name}
     cols = [(names['current'], roles['current'], _held(*data['current'][:2], g, p_ns),
@@ -607,12 +633,16 @@ def _other_signals(signals: dict[str, str], streams: dict, g: np.ndarray, p_ns: 
 
 
 def read_recordings(paths, *, allow_truncated: bool = False, progress: bool | None = False,
-                    **kw) -> list[Recording]:
+                    params=None, check: Sequence[str] | None = None, **kw) -> list[Recording]:
     """Read several bags with :func:`read_recording` (keywords ``kw``).
 
     A truncated bag raises :class:`~.errors.BagError` unless ``allow_truncated`` (then its
     readable part is returned, marked ``truncated``). ``progress`` shows a tqdm bar
-    (``None``: only on a terminal).
+    (``None``: only on a terminal). With ``params`` (the pump's), every recording is checked
+    against it before it is returned (:func:`.plausibility.check_recordings`: units, length),
+    ``check`` naming the signals checked besides the current and the flow (default: all):
+    every problem of every bag is raised at once as a
+    :class:`~.errors.PlausibilityError`.
     """
     from tqdm import tqdm
 
@@ -626,6 +656,8 @@ def read_recordings(paths, *, allow_truncated: bool = False, progress: bool | No
             raise BagError(f'{p}: the bag is truncated ({rec.truncation}); use '
                            'allow_truncated (--allow-truncated) to read its readable part')
         recs.append(rec)
+    if params is not None:
+        check_recordings(recs, params, check)
     return recs
 
 

@@ -20,6 +20,7 @@ from scipy import optimize, signal
 from hydropump_sim.metrics import moving_average
 
 from .errors import FitError
+from .plausibility import MIN_SAMPLES
 
 # 20 ms spans three periods of the 150 Hz dither, so it cancels in the average.
 SMOOTH_SPAN = 0.02
@@ -118,8 +119,9 @@ def check_data(u, y, dt: float, *, min_excitation: float = 0.02) -> tuple[np.nda
             k = int(np.flatnonzero(bad)[0])
             raise FitError(f'{name} has {int(bad.sum())} NaN or infinite samples (first at '
                            f't = {k * dt:.6g} s)')
-    if u.size < 50:
-        raise FitError(f'only {u.size} samples: a fit needs a record of at least 50 samples')
+    if u.size < MIN_SAMPLES:
+        raise FitError(f'only {u.size} samples: a fit needs a record of at least {MIN_SAMPLES} '
+                       'samples')
     us = smooth(u, dt)
     span = float(us.max() - us.min())
     if span < min_excitation:

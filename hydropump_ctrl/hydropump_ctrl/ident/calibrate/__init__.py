@@ -431,12 +431,18 @@ def _result(prob, base, free, coords, theta0, z, unc, before, notes, recordings,
                              f'{m["rms"]:.3g} against a noise of {m["noise"]:.3g} (SI), '
                              f'{m["ratio"]:.2g} x: the model leaves out something the data '
                              'have')
+    fits = _fits(exps, after)
+    for name, per in fits.items():
+        for s, v in per.items():
+            if v < 0.0:
+                flags.append(f'{name}: {s} fit {v:.4g} % is below zero: the model predicts it '
+                             'worse than its mean (wrong units, params file or bag?)')
     delays, offs = _nuisance_tables(prob, nuis)
     r = prob.residuals(z)
     return Calibration(
         params=params, start=base, estimates=estimates, correlation=unc.correlation,
         singular_values=unc.singular_values, weak=unc.weak, held=unc.held,
-        fit=_fits(exps, after), fit_before=_fits(exps, before), misfit=misfit,
+        fit=fits, fit_before=_fits(exps, before), misfit=misfit,
         delays=delays, offsets=offs, sigma={e.name: dict(e.sigma) for e in exps},
         flags=flags, notes=notes,
         sources=[str(getattr(rec, 'source', '') or getattr(rec, 'name', ''))

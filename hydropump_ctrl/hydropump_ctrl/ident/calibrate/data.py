@@ -37,11 +37,12 @@ from hydropump_sim.measure import (
 from hydropump_sim.params import Params
 
 from ..errors import FitError
+from ..plausibility import MIN_SAMPLES
 from ..signals import detect_dither
 
 COMMAND_SIGNAL = 'solenoid_current_cmd'
 NOISE_FLOOR = 1e-3        # the smallest noise level, relative to a signal's span
-MIN_SAMPLES = 50          # samples a recording needs (a few plant time constants at 1 kHz)
+MIN_COMPARED = 10         # finite samples a signal needs beyond this to be compared
 MAX_HELD_GAP = 5          # missing input samples in a row that are held over, not refused
 # The model's output step [s]: a recording sampled more coarsely is simulated this finely, so
 # that a fast transient (the line pole, 3.5 ms) behind a fractional delay is sampled where the
@@ -251,7 +252,7 @@ def experiment_from(rec, base: Params, signals: Sequence[str] | None = None) -> 
             continue
         y = np.array(rec[s], float)
         ok = np.isfinite(y)
-        if ok.sum() <= 10:
+        if ok.sum() <= MIN_COMPARED:
             if explicit:
                 notes.append(f'{name}: {s} has {int(ok.sum())} finite samples: not compared')
             continue
@@ -261,11 +262,16 @@ def experiment_from(rec, base: Params, signals: Sequence[str] | None = None) -> 
             y[~ok] = np.nan
         measured[s] = y - p_atm if s in PRESSURE_SIGNALS else y
     if not measured:
-        missing = [s for s in want if s not in rec]
+        present = [s for s in want if s in rec]
+        if present:
+            # The signals are there but (nearly) empty: say how many samples they have.
+            counts = ', '.join(f'{s} {int(np.isfinite(rec[s]).sum())}' for s in present)
+            raise CalibrationError(
+                f'{name}: no output to compare: finite samples of {counts} of '
+                f'{rec.t.size}; a compared signal needs more than {MIN_COMPARED}')
         raise CalibrationError(
-            f'{name}: no output to compare: the model is compared on '
-            f'{", ".join(want)}; the recording has none of {", ".join(missing) or "them"} with '
-            f'samples (its signals: {", ".join(rec.signals)})')
+            f'{name}: no output to compare: the model is compared on {", ".join(want)}; the '
+            f'recording has none of them (its signals: {", ".join(rec.signals)})')
     sigma = {}
     for s, y in measured.items():
         sig = noise_level(y)
