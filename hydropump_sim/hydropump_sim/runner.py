@@ -271,6 +271,8 @@ class Runner:
         self._sensed = {sig for sig in self.sensors.channels
                         if self.profile.spec(like.get(sig, sig)).active}
         self._current = self.initial_current
+        lo, hi = self.params.I_limits
+        self._applied = min(max(self.initial_current, lo), hi)  # what the plant holds
         self._cmd_seq = 0
         self._cmd_used = 0
         self._last_cmd: float | None = None
@@ -457,6 +459,9 @@ class Runner:
                 self._log('warn', f'no current command for {self.cfg.command_timeout:g} s: '
                                   f'applying the safe current {self.safe_current:.4g} A')
             current = self.safe_current
+        lo, hi = self.params.I_limits
+        # As the Simulator clamps it: diagnostics report what is applied, not what was asked.
+        self._applied = min(max(current, lo), hi)
         self.sim.set_inputs(current=current, **self._pending.pop('inputs', {}))
         if self.scenario:
             self.sim.set_inputs(**{name: float(sig(self.sim.t))
@@ -495,7 +500,8 @@ class Runner:
             age = (self._clock() - self._last_cmd) if self._last_cmd is not None else math.nan
             snap = {'flags': limit_flags(self.params, self._y), 'stats': dict(self.stats),
                     'failed': self._failed, 'paused': self._paused, 'watchdog': self._watchdog,
-                    'command_age': age, 'applied_current': self._current}
+                    'command_age': age, 'applied_current': self._applied,
+                    'commanded_current': self._current}
         rtf = self.cfg.real_time_factor
         snap['sim_time'] = self.sim.t
         snap['accepted_steps'], snap['rejected_steps'] = (int(v) for v in self.sim.stats)

@@ -22,13 +22,15 @@ def executable(name: str, package: str = 'hydropump_ros') -> str:
 class NodeProcess:
     """A node in its own process, its log in a file; stopped by PID, never by name."""
 
-    def __init__(self, name: str, ros_args: list[str], log_dir: Path, env: dict | None = None):
+    def __init__(self, name: str, ros_args: list[str], log_dir: Path, env: dict | None = None,
+                 preexec_fn=None):
         self.name = name
         self.log_path = log_dir / f'{name}-{time.monotonic_ns()}.log'
         self._log = open(self.log_path, 'w')  # noqa: SIM115 - closed in stop()
+        # preexec_fn: runs in the child before the node starts (e.g. a file-size limit).
         self.proc = subprocess.Popen([executable(name), '--ros-args', *ros_args],
                                      stdout=self._log, stderr=subprocess.STDOUT,
-                                     env=env or os.environ.copy())
+                                     env=env or os.environ.copy(), preexec_fn=preexec_fn)
 
     @property
     def pid(self) -> int:

@@ -200,12 +200,20 @@ def test_bad_commands_and_watchdog(nodes, test_node):
     spin_until(test_node, lambda: len(diag) > n + 1, 20, 'diagnostics')
     cmd = _diag_values(diag[-1])['simulator: command']
     assert cmd['nan_commands'] == '2' and cmd['clamped_commands'] == '1'
+    # The current the plant holds, not the command's 2 A (the safe current once the watchdog
+    # holds, which a loaded machine may reach by now).
+    for msg in diag[n:]:
+        c = _diag_values(msg)['simulator: command']
+        held = 0.3 if c['watchdog_active'] == 'True' else 0.9
+        assert float(c['applied_current_A']) == pytest.approx(held), c
+        assert float(c['commanded_current_A']) == pytest.approx(2.0), c
     # No command for command_timeout (steady clock): the safe current, 0 % displacement.
     settle(0.3, 'the safe current after the watchdog')
     n = len(diag)
     spin_until(test_node, lambda: len(diag) > n + 1, 20, 'diagnostics')
     cmd = _diag_values(diag[-1])['simulator: command']
     assert cmd['watchdog_active'] == 'True' and cmd['watchdog_trips'] == '1'
+    assert float(cmd['applied_current_A']) == pytest.approx(0.3)
     pub.publish(Float64(data=0.5))
     settle(0.5, 'commands back after the watchdog')
 

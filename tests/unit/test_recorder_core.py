@@ -233,3 +233,118 @@ def test_gaps_in_sequence_numbers_are_counted_as_lost(tmp_path):
     assert count == 4
     assert info['custom_data']['messages_lost'] == '2'
     assert info['custom_data']['lost./a'] == '2'
+
+
+# ---- a write that fails ----------------------------------------------------------------------
+
+_FULL_DISK = """
+import resource, signal, struct, sys
+from hydropump_ctrl.recorder import BagWriteError, BagWriter, qos_profile
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)     # a write past the limit fails with EFBIG
+limit = int(sys.argv[2])
+resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+w = BagWriter(sys.argv[1], compression='none', chunk_period=0.01).open()
+w.add_topic('/line_flow', 'std_msgs/msg/Float64', [qos_profile()])
+try:
+    for k in range(10 ** 6):
+        w.write('/line_flow', k * 1_000_000, b'\\x00\\x01\\x00\\x00' + struct.pack('<d', k))
+    w.close()
+except BagWriteError as exc:
+    print(exc.messages, exc.reason)
+    print(exc)
+    try:
+        w.write('/line_flow', 0, b'')
+    except BagWriteError:
+        print('refused')
+"""
+
+
+@pytest.mark.parametrize('limit', [200_000, 200_554, 200_604])
+def test_a_failed_write_leaves_a_valid_bag_of_the_whole_chunks(tmp_path, limit):
+    """A file-size limit (as a full disk) stops the writer: the MCAP is cut back to its last
+    whole chunk and ended there, metadata.yaml counts what it holds, and nothing more is
+    taken. The limits put the failure at different bytes of a chunk, so the ending fits
+    after the last chunk or needs room made for it."""
+    import subprocess
+    import sys
+
+    from mcap.reader import make_reader
+    from rosbags.rosbag2 import Reader
+    bag = tmp_path / 'full'
+    proc = subprocess.run([sys.executable, '-c', _FULL_DISK, str(bag), str(limit)],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0 and 'Traceback' not in proc.stderr, proc.stderr
+    first, text, refused = proc.stdout.splitlines()
+    count, reason = first.split(' ', 1)
+    assert reason == 'File too large (EFBIG)' and refused == 'refused'
+    assert text.startswith(f'{bag}: cannot write: File too large (EFBIG); the bag is closed '
+                           f'with the {count} messages written before (metadata.yaml written)')
+    count = int(count)
+    assert count > 1000
+    path = bag / 'full_0.mcap'
+    assert path.stat().st_size <= limit
+    # A valid MCAP: the strict reader finds the footer and every message.
+    with open(path, 'rb') as f:
+        msgs = list(make_reader(f).iter_messages())
+    assert len(msgs) == count
+    assert [m.log_time for _, _, m in msgs] == [k * 1_000_000 for k in range(count)]
+    info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert info['message_count'] == count
+    assert info['topics_with_message_count'][0]['message_count'] == count
+    assert info['custom_data']['closed_by'] == 'write error: File too large (EFBIG)'
+    with Reader(bag) as r:
+        assert sum(1 for _ in r.messages()) == count
+
+
+def test_a_full_disk_ends_the_recording_with_the_bag_so_far(tmp_path):
+    """ENOSPC in the middle of a recording: the bag holds the whole chunks before it, the
+    recorder records nothing more and says why (log, diagnostics, start and stop)."""
+    import errno
+
+    from mcap.reader import make_reader
+    logs = []
+    cfg = build(RecorderConfig, {'output': str(tmp_path / 'bag'), 'topics': ['/a'],
+                                 'flush_period': 0.1})
+    rec = Recorder(cfg, ['/a'], Graph(), log=lambda lvl, txt: logs.append((lvl, txt)))
+    rec.start()
+    sink = rec.session.writer._fh
+
+    def full(flush=sink.flush):  # the disk fills once 250 messages are in
+        if rec.session.writer.count > 250:
+            raise OSError(errno.ENOSPC, 'No space left on device')
+        flush()
+    sink.flush = full
+    for k in range(1000):
+        rec.clock(_clock(k * MS), {'source_timestamp': 10 * k})
+        rec.message('/a', False, _float(), {'source_timestamp': 10 * k + 1,
+                                            'publication_sequence_number': k + 1})
+        rec.advance(1)
+        if rec.failed:
+            break
+    assert rec.failed is not None and rec.session is None and k < 999
+    assert rec.failed.reason == 'No space left on device (ENOSPC)'
+    errors = [txt for lvl, txt in logs if lvl == 'error']
+    assert len(errors) == 1 and 'recording stopped' in errors[0]
+    assert rec.diagnostics()['error'] == 'No space left on device (ENOSPC)'
+    with pytest.raises(BagError, match='recording failed'):
+        rec.start()
+    assert rec.request_stop(0.1) is False and rec.finish_stop() is None
+    bag = tmp_path / 'bag'
+    with open(bag / 'bag_0.mcap', 'rb') as f:
+        n = sum(1 for _ in make_reader(f).iter_messages())
+    assert n == rec.failed.messages and n % 100 == 0 and 200 <= n < k  # whole 0.1 s chunks
+    info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert info['message_count'] == n
+    assert info['custom_data']['time_base'] == 'simulation'
+
+
+def test_an_unpublished_topic_is_named_with_the_nearest_known_one():
+    from hydropump_ctrl.recorder import SUITE_TYPES, unpublished_note
+    known = ['/' + t.lstrip('/') for t in SUITE_TYPES]
+    assert unpublished_note('/lien_pressure', known, 5.0) == (
+        'no publisher on /lien_pressure after 5 s (did you mean /line_pressure?)')
+    ns = ['/pump1/line_flow', '/pump1/load_flow', '/line_flow']
+    assert unpublished_note('/pump1/lien_flow', ns, 5.0) == (
+        'no publisher on /pump1/lien_flow after 5 s (did you mean /pump1/line_flow?)')
+    assert unpublished_note('/camera/image', known, 5.0) == (
+        'no publisher on /camera/image after 5 s')

@@ -114,6 +114,12 @@ def test_nan_commands_are_refused_and_out_of_range_clamped(params):
     lo, hi = params.I_limits
     assert r.sim.u[0] + params.I_nominal == pytest.approx(hi)
     assert any('non-finite' in t for _, t in logs) and any('clamped' in t for _, t in logs)
+    # Diagnostics report the current the plant holds, the command beside it.
+    d = r.diagnostics()
+    assert d['applied_current'] == pytest.approx(hi) and d['commanded_current'] == 5.0
+    r.command(-1.0e9)
+    r._inputs()
+    assert r.diagnostics()['applied_current'] == pytest.approx(lo)
 
 
 def test_command_watchdog_applies_the_safe_current_and_releases(params):
@@ -121,11 +127,12 @@ def test_command_watchdog_applies_the_safe_current_and_releases(params):
     r = Runner(Simulator(params), cfg(real_time_factor=0.0, command_timeout=0.5),
                clock=clock, sleep=clock.sleep)
     r.command(0.6)
-    applied = []
+    applied, reported = [], []
 
     def on_frame(sink, frame):
         clock.t += 0.01  # 10 ms of wall time per step
         applied.append(r.sim.u[0] + params.I_nominal)
+        reported.append(r.diagnostics()['applied_current'])
         if len(sink.frames) == 80:
             r.command(0.6)
 
@@ -137,6 +144,9 @@ def test_command_watchdog_applies_the_safe_current_and_releases(params):
     assert np.allclose(applied[55:79], r.safe_current)
     assert applied[85] == pytest.approx(0.6)
     assert r.stats['watchdog_trips'] == 1
+    # Diagnostics say what the plant held at every step, the safe current included.
+    np.testing.assert_allclose(reported, applied)
+    assert r.safe_current != pytest.approx(0.6)
 
 
 def test_lock_step_advances_one_period_per_command(params):

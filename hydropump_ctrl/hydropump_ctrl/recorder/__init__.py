@@ -16,15 +16,15 @@ from dataclasses import dataclass
 
 from hydropump_sim.measure import FLOAT64, JOINT_STATE
 from hydropump_sim.measure import SIGNALS as MEASURED
-from hydropump_sim.schema import spec
+from hydropump_sim.schema import closest_name, spec
 
-from .bag import BagError, BagWriter, message_definition, qos_profile, unique_path
+from .bag import BagError, BagWriteError, BagWriter, message_definition, qos_profile, unique_path
 from .sequencer import Record, Sequencer
 from .session import header_stamp, Recorder, Session
 
-__all__ = ['BagError', 'BagWriter', 'DEFAULT_TOPICS', 'Record', 'Recorder', 'RecorderConfig',
-           'Sequencer', 'Session', 'SUITE_TYPES', 'header_stamp', 'message_definition',
-           'qos_profile', 'unique_path']
+__all__ = ['BagError', 'BagWriteError', 'BagWriter', 'DEFAULT_TOPICS', 'Record', 'Recorder',
+           'RecorderConfig', 'Sequencer', 'Session', 'SUITE_TYPES', 'header_stamp',
+           'message_definition', 'qos_profile', 'unique_path', 'unpublished_note']
 
 # The suite's topics and their types (the plant's from the one signal table); other topics
 # are looked up in the ROS graph.
@@ -66,3 +66,12 @@ class RecorderConfig:
                             'has delivered up to it (an orchestrator that paused the simulator '
                             'there gets the same bag however loaded the machine); 0 = the '
                             'latest /clock', 0.0, 1.0e6, default=0.0, live=True)
+
+
+def unpublished_note(topic: str, known, grace: float) -> str:
+    """What to say of a recorded topic that no publisher offered within ``grace`` s: most
+    often a typo, so the nearest of ``known`` (the suite's topics and the graph's, resolved)
+    is named: ``no publisher on /lien_pressure after 5 s (did you mean /line_pressure?)``."""
+    close = closest_name(topic, [k for k in known if k != topic])
+    hint = f' (did you mean {close}?)' if close else ''
+    return f'no publisher on {topic} after {grace:g} s{hint}'

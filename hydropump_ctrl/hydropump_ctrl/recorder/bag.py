@@ -17,19 +17,27 @@ A bag is a folder ``<bag>/`` holding ``<bag>_0.mcap`` and, once closed, ``metada
   ``ros_distro: jazzy`` and ``custom_data`` (string to string).
 
 Every problem a user can cause (an existing or unwritable folder) is a :class:`BagError`.
+A write that fails (disk full, a file-size limit, an I/O error) is a :class:`BagWriteError`,
+raised once the bag is closed with what it had: the MCAP bytes reach the file only at chunk
+boundaries, so the file is cut back to the last whole chunk and ended there (a valid MCAP,
+with ``metadata.yaml`` if there is room for it), and the writer takes nothing more.
 Nothing here imports ROS.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Mapping, Sequence
+import errno
 import functools
 import os
 from pathlib import Path
 import re
 from typing import Any
 
-from mcap.writer import CompressionType, Writer
+from mcap.data_stream import RecordBuilder
+from mcap.records import DataEnd, Footer, Metadata
+from mcap.writer import CompressionType, MCAP0_MAGIC, Writer
 import numpy as np
 
 from hydropump_sim.errors import HydropumpError
@@ -48,6 +56,51 @@ class BagError(HydropumpError, OSError):
 
 class BagExistsError(BagError):
     """The bag folder exists already (a bag is never overwritten)."""
+
+
+class BagWriteError(BagError):
+    """Writing failed (disk full, file too large, I/O error); the bag is closed with the
+    messages written before (:attr:`messages` of them)."""
+
+    def __init__(self, text: str, path: Path, reason: str, messages: int):
+        super().__init__(text)
+        self.path, self.reason, self.messages = path, reason, messages
+
+
+def os_reason(exc: OSError) -> str:
+    """``'No space left on device (ENOSPC)'``."""
+    name = errno.errorcode.get(exc.errno or 0)
+    text = exc.strerror or str(exc) or type(exc).__name__
+    return f'{text} ({name})' if name else text
+
+
+class _FileSink:
+    """The MCAP writer's output stream: bytes stay in memory until :meth:`flush` hands them
+    to the file, at record boundaries only, so the size of the file at the last successful
+    flush is known exactly and a failed write can be cut back to it."""
+
+    def __init__(self, fd: int):
+        self.fd = fd
+        self.size = 0                   # bytes in the file, every one written whole
+        self._buf = bytearray()
+
+    def write(self, data) -> int:
+        self._buf += data
+        return len(data)
+
+    def tell(self) -> int:
+        return self.size + len(self._buf)
+
+    def flush(self) -> None:
+        with memoryview(self._buf) as view:
+            done = 0
+            while done < len(view):
+                done += os.write(self.fd, view[done:])  # OSError: the caller salvages
+        self.size += len(self._buf)
+        self._buf.clear()
+
+    def drop(self) -> None:
+        self._buf.clear()
 
 
 def qos_profile(history: str = 'unknown', depth: int = 0, reliability: str = 'reliable',
@@ -170,8 +223,11 @@ class BagWriter:
         self._topics: dict[str, dict] = {}
         self._schemas: dict[str, int] = {}
         self._chunk_end: int | None = None
-        self._fh = None
+        self._fh: _FileSink | None = None
         self._mcap: Writer | None = None
+        # (file size, counts) after the latest whole chunks: where a failed write cuts back to
+        self._marks: deque = deque(maxlen=8)
+        self.failed: BagWriteError | None = None
 
     # ---- opening -------------------------------------------------------------------------
 
@@ -193,16 +249,22 @@ class BagWriter:
             raise BagError(f'{self.path}: cannot create the bag: {exc.strerror or exc}') \
                 from None
         try:
-            self._fh = open(self.path / self.file_name, 'xb')  # noqa: SIM115 - closed in close()
+            fd = os.open(self.path / self.file_name, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         except OSError as exc:
             raise BagError(f'{self.path}: cannot create the bag: {exc.strerror or exc}') \
                 from None
+        self._fh = _FileSink(fd)
         self._mcap = Writer(self._fh, chunk_size=CHUNK_SIZE,
                             compression=COMPRESSION[self.compression])
         self._mcap.start(profile='ros2', library='hydropump recorder (mcap)')
         self._mcap.add_metadata('rosbag2', {'serialized_metadata': yaml_cpp(self._metadata())})
-        self._mcap.flush()
-        self._fh.flush()
+        try:
+            self._mcap.flush()
+        except OSError as exc:
+            os.close(fd)
+            self._fh = self._mcap = None
+            raise BagError(f'{self.path}: cannot write the bag: {os_reason(exc)}') from None
+        self._mark()
         return self
 
     def __enter__(self) -> BagWriter:
@@ -237,7 +299,10 @@ class BagWriter:
 
     def write(self, topic: str, log_ns: int, data: bytes, publish_ns: int | None = None
               ) -> None:
-        """One serialized message at log time ``log_ns`` [ns]."""
+        """One serialized message at log time ``log_ns`` [ns]; :class:`BagWriteError` if the
+        file cannot take it (the bag is then closed, see the module)."""
+        if self._mcap is None:
+            raise self.failed or BagError(f'{self.path}: the bag is closed')
         t = self._topics[topic]
         if self._chunk_end is None:
             self._chunk_end = (log_ns // self._period_ns + 1) * self._period_ns
@@ -254,24 +319,116 @@ class BagWriter:
 
     def flush(self) -> None:
         """Close the open chunk and hand it to the operating system."""
-        self._mcap.flush()
-        self._fh.flush()
+        try:
+            self._mcap.flush()
+        except OSError as exc:
+            self._salvage(exc)
+        self._mark()
 
     def close(self) -> Path:
         """Write the final metadata record, the summary and ``metadata.yaml``."""
         if self._mcap is None:
+            if self.failed is not None:
+                raise self.failed
             return self.path
-        self._mcap.flush()
-        self._mcap.add_metadata('rosbag2',
-                                {'serialized_metadata': yaml_cpp(self._metadata(final=True))})
-        self._mcap.finish()
-        self._fh.close()
+        try:
+            self._mcap.flush()
+            self._mark()
+            self._mcap.add_metadata('rosbag2', {'serialized_metadata': yaml_cpp(
+                self._metadata(final=True))})
+            self._mcap.finish()
+            self._fh.flush()
+        except OSError as exc:
+            self._salvage(exc)
+        os.close(self._fh.fd)
         self._mcap = None
+        try:
+            self._write_info()
+        except OSError as exc:
+            self.failed = self._error(exc, 'metadata.yaml not written')
+            raise self.failed from None
+        return self.path
+
+    def _write_info(self) -> None:
         text = yaml_cpp({'rosbag2_bagfile_information': self._metadata(final=True)})
         tmp = self.path / 'metadata.yaml.tmp'
-        tmp.write_text(text, encoding='utf-8')
-        os.replace(tmp, self.path / 'metadata.yaml')
-        return self.path
+        try:
+            tmp.write_text(text, encoding='utf-8')
+            os.replace(tmp, self.path / 'metadata.yaml')
+        except OSError:
+            tmp.unlink(missing_ok=True)
+            raise
+
+    # ---- a failed write ------------------------------------------------------------------
+
+    def _mark(self) -> None:
+        self._marks.append((self._fh.size, self.count, self.start, self.end,
+                            {k: t['count'] for k, t in self._topics.items()}))
+
+    def _error(self, exc: OSError, what: str) -> BagWriteError:
+        reason = os_reason(exc)
+        return BagWriteError(f'{self.path}: cannot write: {reason}; {what}', self.path, reason,
+                             self.count)
+
+    def _salvage(self, exc: OSError) -> None:
+        """After a failed write: cut the file back to its last whole chunk, end it there as
+        a valid MCAP (going back a chunk at a time until the ending fits), write
+        ``metadata.yaml`` for what is in it, and raise :class:`BagWriteError`."""
+        self._fh.drop()
+        fd, self._mcap = self._fh.fd, None
+        self.custom_data['closed_by'] = f'write error: {os_reason(exc)}'
+        latest = self._marks[-1] if self._marks else None
+        ended = False
+        while self._marks and not ended:
+            self._restore(self._marks[-1])
+            ended = self._end_at(fd, self._marks[-1][0])
+            if not ended:
+                self._marks.pop()  # drop the last chunk to make room for the ending
+        if not ended and latest is not None:
+            # No room even for an ending: keep every whole chunk (a streaming reader and
+            # ros2 bag reindex read a file without one).
+            self._restore(latest)
+            os.ftruncate(fd, latest[0])
+        os.close(fd)
+        info = 'no room for metadata.yaml: ros2 bag reindex rebuilds it'
+        if ended:
+            try:
+                self._write_info()
+                info = 'metadata.yaml written'
+            except OSError:
+                pass
+        what = (f'closed with the {self.count} messages written before' if ended
+                else f'left without an ending after {self.count} messages')
+        self.failed = self._error(exc, f'the bag is {what} ({info})')
+        raise self.failed from None
+
+    def _restore(self, mark) -> None:
+        """The counts of a mark: what the file holds when cut back to it."""
+        _, self.count, self.start, self.end, counts = mark
+        for name, t in self._topics.items():
+            t['count'] = counts.get(name, 0)
+
+    def _end_at(self, fd: int, size: int) -> bool:
+        """Cut the file to ``size`` and end it (the final ``rosbag2`` metadata record if there
+        is room, a data end, a footer without summary, the magic); whether it fitted."""
+        b = RecordBuilder()
+        Metadata(name='rosbag2', metadata={'serialized_metadata': yaml_cpp(
+            self._metadata(final=True))}).write(b)
+        record = b.end()
+        DataEnd(data_section_crc=0).write(b)
+        Footer(summary_start=0, summary_offset_start=0, summary_crc=0).write(b)
+        bare = b.end() + MCAP0_MAGIC
+        for data in (record + bare, bare):
+            try:
+                os.ftruncate(fd, size)
+                os.lseek(fd, size, os.SEEK_SET)
+                view = memoryview(data)
+                while view:
+                    view = view[os.write(fd, view):]
+                return True
+            except OSError:
+                continue
+        return False
 
     def _metadata(self, final: bool = False) -> dict[str, Any]:
         start = self.start if final and self.start is not None else INT64_MAX

@@ -17,6 +17,9 @@
   in. If ``/clock`` runs on (a paced
   run stopped by a signal), the bag ends at the ``/clock`` of the sweep: nothing after the
   signal. Either way it closes by the deadline.
+- **A write that fails** (disk full, a file-size limit, an I/O error): the writer closes the
+  bag with the chunks written before (:class:`~.bag.BagWriteError`); the recorder records
+  nothing more, and :attr:`Recorder.failed` says why (the node reports it and exits).
 
 The node passes a *graph* (the ROS side's answers: ``types`` by topic, ``matched()``,
 ``publishers(topic)``, ``offered_qos(topic)``) and takes the messages; everything else is
@@ -32,7 +35,7 @@ import struct
 import time
 from typing import Any, Protocol
 
-from .bag import open_unique
+from .bag import BagError, BagWriteError, open_unique
 from .sequencer import Sequencer
 
 
@@ -75,6 +78,8 @@ class Session:
 
     def start_sequencer(self, mode: str) -> None:
         self.seq = Sequencer(self.rec.topics, mode, idle_timeout=self.rec.cfg.idle_timeout)
+        # Now, not only at close: a bag closed by a write error says it too.
+        self.writer.custom_data['time_base'] = 'simulation' if mode == 'sim' else 'wall'
         for topic in self.rec.graph.matched():
             self.seq.matched(topic)
         early, self.early = self.early, []
@@ -171,11 +176,14 @@ class Recorder:
         self._sweep_clock: int | None = None           # latest /clock at the sweep
         self._last_clock = 0.0                          # steady time of the latest /clock
         self.output = cfg.output
+        self.failed: BagWriteError | None = None        # a write failed: recording is over
 
     # ---- sessions ------------------------------------------------------------------------
 
     def start(self) -> Path:
         """Open a bag (:class:`~.bag.BagError` with the reason if it cannot be made)."""
+        if self.failed is not None:
+            raise BagError(f'recording failed: {self.failed}')
         if self.session is None:
             out = self.output
             path = Path(out) if out else (Path('bags')
@@ -194,6 +202,12 @@ class Recorder:
         self.closed.append((path, s.messages))
         return self.closed[-1]
 
+    def _fail(self, exc: BagWriteError) -> None:
+        """A write failed: the writer has closed the bag with what it could keep."""
+        self.session, self._stop, self.failed = None, None, exc
+        self.closed.append((exc.path, exc.messages))
+        self._log('error', f'{exc}: recording stopped')
+
     def _restart(self, why: str, clock_ns: int, source_ns: int, sequence: int | None,
                  writer=None) -> None:
         old, _ = self._close(why)
@@ -209,6 +223,12 @@ class Recorder:
             self.session.message(topic, stamped, data, info)
 
     def clock(self, data: bytes, info: dict) -> None:
+        try:
+            self._clock(data, info)
+        except BagWriteError as exc:
+            self._fail(exc)
+
+    def _clock(self, data: bytes, info: dict) -> None:
         s = self.session
         if s is None:
             return
@@ -237,6 +257,12 @@ class Recorder:
     def advance(self, clock_publishers: int) -> None:
         """After each pass of the take loop: write what may be written, decide a bag's time
         base, finish a stop."""
+        try:
+            self._advance(clock_publishers)
+        except BagWriteError as exc:
+            self._fail(exc)
+
+    def _advance(self, clock_publishers: int) -> None:
         s = self.session
         if s is None:
             return
@@ -287,10 +313,16 @@ class Recorder:
         self._stop = (self._stop[0], True)
 
     def finish_stop(self) -> tuple[Path, int] | None:
-        """End a stop (closing now if the take loop did not); the bag closed, if any."""
+        """End a stop (closing now if the take loop did not); the bag closed, if any
+        (``None`` if a write failed: see :attr:`failed`)."""
         if self.session is not None and self._stop is not None:
-            self._close('stop')
+            try:
+                self._close('stop')
+            except BagWriteError as exc:
+                self._fail(exc)
         self._stop = None
+        if self.failed is not None:
+            return None
         return self.closed[-1] if self.closed else None
 
     @property
@@ -300,6 +332,9 @@ class Recorder:
     def diagnostics(self) -> dict[str, Any]:
         s = self.session
         values: dict[str, Any] = {'recording': s is not None}
+        if self.failed is not None:
+            values.update({'bag': str(self.failed.path), 'messages': self.failed.messages,
+                           'error': self.failed.reason})
         if s is not None:
             values.update({'bag': str(s.path), 'messages': s.messages,
                            'buffered': s.seq.buffered if s.seq else len(s.early),

@@ -38,7 +38,7 @@ from hydropump_sim.params import default_params_path
 from hydropump_sim.schema import check_all, ParamError, read_params_file, specs_of
 
 from . import bridge, entry
-from .conversions import ClockWriter, stamp, to_ns
+from .conversions import CLOCK, ClockWriter, stamp, to_ns
 
 # What the laws read: the flow signal (line_flow or pump_flow), the current (bumpless starts)
 # and the two pressures of the margin. Every sample costs an executor callback, so nothing
@@ -118,7 +118,7 @@ class ControllerNode(bridge.ExplainedParameters, LifecycleNode):
                 sup.measurement, t, m.fluid_pressure, stamp_ns=to_ns(m.header.stamp)),
                 latest))
         writer = ClockWriter(self)
-        self._io_entities.append(sub(ClockMsg, '/clock', lambda m, info: self._run(
+        self._io_entities.append(sub(ClockMsg, CLOCK, lambda m, info: self._run(
             sup.clock, to_ns(m.clock), info['source_timestamp'],
             info.get('publication_sequence_number'), writer.of(info['source_timestamp'])),
             QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)))
@@ -128,7 +128,7 @@ class ControllerNode(bridge.ExplainedParameters, LifecycleNode):
         wall = Clock(clock_type=ClockType.SYSTEM_TIME)
         self._timers = [
             self.create_timer(cfg.period, lambda: self._run(
-                sup.wall_tick, wall.now().nanoseconds, self.count_publishers('/clock')),
+                sup.wall_tick, wall.now().nanoseconds, self.count_publishers(CLOCK)),
                 clock=steady),
             self.create_timer(0.05, lambda: self._run(sup.check_watchdog), clock=steady),
             self.create_timer(0.1, writer.refresh, clock=steady),
@@ -211,14 +211,13 @@ class ControllerNode(bridge.ExplainedParameters, LifecycleNode):
         self._pub_state.publish(msg)
 
     def _publish_diagnostics(self) -> None:
-        d = self._locked(self.sup.diagnostics)
-        bad = d['watchdog'] != 'running' or d['rejected_nan'] or d['rejected_range']
+        with self._lock:
+            d = self.sup.diagnostics()
+            level, message = self.sup.status()
         st = DiagnosticStatus(
             name='controller', hardware_id='hydropump',
-            level=DiagnosticStatus.WARN if bad else DiagnosticStatus.OK,
-            message={'running': 'ok', 'hold': 'measurements stale: holding',
-                     'safe': 'measurements lost: safe current'}[d['watchdog']],
-            values=[KeyValue(key=k, value=str(v)) for k, v in d.items()])
+            level=DiagnosticStatus.WARN if level == 'warn' else DiagnosticStatus.OK,
+            message=message, values=[KeyValue(key=k, value=str(v)) for k, v in d.items()])
         self._pub_diag.publish(DiagnosticArray(status=[st]))
 
 

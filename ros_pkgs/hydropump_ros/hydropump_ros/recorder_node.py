@@ -15,6 +15,14 @@ recorder's questions about the graph (types, matched publishers, their QoS).
 - ``~/stop``, SIGINT and SIGTERM stop at once: the bag gets what was published up to the
   latest ``/clock`` and had arrived, or arrives within the next second, and closes.
 
+- A topic name that is empty or invalid ends start-up with one ``error:`` line (exit code 2);
+  a recorded topic that no publisher offers within :data:`TOPIC_GRACE` of start-up (or of
+  ``~/start``) is reported (log and ``/diagnostics`` WARN), with the nearest known topic.
+- A write that fails (disk full, a file-size limit, an I/O error) closes the bag with the
+  chunks written before; ``/diagnostics`` says ERROR and why, ``~/stop`` answers false with
+  the reason, and after :data:`FAIL_LINGER` the node exits with one line ``error: <bag>:
+  <reason>`` and exit code :data:`EXIT_WRITE_ERROR` (3).
+
 Services (``std_srvs/Trigger``): ``~/start`` opens a bag, ``~/stop`` closes it, ``~/ready``
 answers whether every topic has a matched publisher.
 """
@@ -22,6 +30,7 @@ answers whether every topic has a matched publisher.
 from __future__ import annotations
 
 import importlib
+import sys
 import threading
 import time
 
@@ -37,17 +46,24 @@ from hydropump_ctrl.recorder import (
     Recorder,
     RecorderConfig,
     SUITE_TYPES,
+    unpublished_note,
 )
 from hydropump_sim.schema import spec_map, specs_of
 
 from . import bridge, entry
-from .conversions import ClockWriter
+from .conversions import CLOCK, ClockWriter
 
 # The take loop's sleep after an empty pass: first, and at most [s].
 IDLE_NAP = (0.0005, 0.004)
 
 STOP_LIMIT = 0.8   # s: a stop waits at most this long for messages still on their way
 END_LIMIT = 30.0   # s: ... and this long for every topic to reach a given stop_time
+# s after start-up or ~/start: a recorded topic with no publisher yet is reported (longer
+# than a discovery that missed its first announcements, 3 s later in Fast DDS).
+TOPIC_GRACE = 5.0
+# s a recorder whose write failed stays up to say so (/diagnostics, ~/stop) before it exits.
+FAIL_LINGER = 1.5
+EXIT_WRITE_ERROR = 3
 
 
 def _msg_class(msgtype: str):
@@ -80,7 +96,11 @@ class RecorderNode(bridge.ExplainedParameters, Node):
         self._lock = threading.RLock()
         self.types: dict[str, str] = {}
         self._pub_counts: dict[str, int] = {}
-        topics = [self.resolve_topic_name(n) for n in self.cfg.topics]
+        topics = self._resolve(self.cfg.topics)
+        self.exit_code = 0
+        self._failure_said = False
+        self._grace_from = time.monotonic()
+        self._unpublished: dict[str, str] = {}       # topic -> what the log said of it
         self.rec = Recorder(self.cfg, topics, self, log=lambda lvl, txt: entry.log(
             self.get_logger(), lvl, txt))
         self._qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
@@ -90,7 +110,7 @@ class RecorderNode(bridge.ExplainedParameters, Node):
         self._io = entry.hidden_node(self)
         self._subs: list = []                        # (subscription, topic, stamped)
         self._clock_sub = self._io.create_subscription(
-            _msg_class(SUITE_TYPES['/clock']), '/clock', lambda *_: None, self._qos, raw=True)
+            _msg_class(SUITE_TYPES['/clock']), CLOCK, lambda *_: None, self._qos, raw=True)
         for name, topic in zip(self.cfg.topics, topics):
             msgtype = SUITE_TYPES.get(name) or SUITE_TYPES.get(topic)
             if msgtype:
@@ -113,6 +133,20 @@ class RecorderNode(bridge.ExplainedParameters, Node):
                                            for ln in exc.lines]) from None
         self._taker = threading.Thread(target=self._take_loop, name='take', daemon=True)
         self._taker.start()
+
+    def _resolve(self, names: list[str]) -> list[str]:
+        """Resolved topic names; every invalid one an ``error:`` line at start-up."""
+        out, bad = [], []
+        for name in names:
+            try:
+                out.append(self.resolve_topic_name(name))
+            except Exception as exc:  # rclpy raises RCLError, with no public class to catch
+                why = ' '.join(str(exc).split(', at ')[0].split())
+                bad.append(f'topics: {name!r} is not a valid topic name '
+                           f'({why.removeprefix("failed to resolve name: ")})')
+        if bad:
+            raise bridge.StartupError(bad)
+        return out
 
     # ---- the graph (the recorder asks) ---------------------------------------------------
 
@@ -137,6 +171,28 @@ class RecorderNode(bridge.ExplainedParameters, Node):
         with self._lock:
             self._pub_counts = counts
             self.rec.matched()
+        self._check_publishers()
+
+    def _check_publishers(self) -> None:
+        """After the grace period, say once which recorded topics no publisher offers (a typo
+        records nothing, silently otherwise), and when one comes."""
+        if time.monotonic() - self._grace_from < TOPIC_GRACE:
+            return
+        matched = set(self.matched())
+        known = None
+        for topic in self.rec.topics:
+            if topic in matched:
+                if self._unpublished.pop(topic, None):
+                    self._log('info', f'{topic}: a publisher is there now')
+            elif topic not in self._unpublished:
+                if known is None:
+                    known = {self.resolve_topic_name(n) for n in SUITE_TYPES}
+                    known.update(n for n, _ in self.get_topic_names_and_types())
+                self._unpublished[topic] = unpublished_note(topic, known, TOPIC_GRACE)
+                self._log('warn', self._unpublished[topic])
+
+    def _log(self, level: str, text: str) -> None:
+        entry.log(self.get_logger(), level, text)
 
     def matched(self) -> list[str]:
         return [topic for sub, topic, _ in self._subs if sub.get_publisher_count() > 0]
@@ -169,6 +225,10 @@ class RecorderNode(bridge.ExplainedParameters, Node):
                 got = self._take(batch)
                 if rec.stopping is False and rec.needs_sweep is False:
                     self._stopped.set()
+                failed = rec.failed is not None
+            if failed:
+                self._write_failed()
+                return
             if got:
                 nap = IDLE_NAP[0]
             else:
@@ -194,7 +254,7 @@ class RecorderNode(bridge.ExplainedParameters, Node):
             data, info = taken
             info['writer'] = self._writer.of(info['source_timestamp'])
             rec.clock(data, info)
-        rec.advance(self._io.count_publishers('/clock') if rec.session and
+        rec.advance(self._io.count_publishers(CLOCK) if rec.session and
                     rec.session.seq is None else 1)
         return got
 
@@ -211,7 +271,25 @@ class RecorderNode(bridge.ExplainedParameters, Node):
         if self._taker.is_alive():
             self._stopped.wait(limit + 1.0)
         with self._lock:
-            return self.rec.finish_stop()
+            done = self.rec.finish_stop()
+        if self.rec.failed is not None:
+            self._write_failed()
+        return done
+
+    def _write_failed(self) -> None:
+        """A write failed (the bag is closed with what it could keep): say so on
+        /diagnostics now, and end the process after :data:`FAIL_LINGER`, so that a
+        supervisor sees the exit code and the reason rather than a recorder that records
+        nothing."""
+        with self._lock:
+            if self._failure_said:
+                return
+            self._failure_said = True
+        self.exit_code = EXIT_WRITE_ERROR
+        self._publish_diagnostics()
+        timer = threading.Timer(FAIL_LINGER, entry.request_shutdown)
+        timer.daemon = True
+        timer.start()
 
     def close(self) -> None:
         """SIGINT or SIGTERM: stop recording, close the bag, end the take loop."""
@@ -219,6 +297,9 @@ class RecorderNode(bridge.ExplainedParameters, Node):
         self._halt.set()
         self._taker.join(timeout=2.0)
         self._io.destroy_node()
+        if self.rec.failed is not None:
+            self.exit_code = EXIT_WRITE_ERROR
+            print(f'error: {self.rec.failed}', file=sys.stderr, flush=True)
 
     # ---- services and parameters ---------------------------------------------------------
 
@@ -229,13 +310,17 @@ class RecorderNode(bridge.ExplainedParameters, Node):
         except BagError as exc:
             response.success, response.message = False, exc.lines[0]
             return response
+        self._grace_from = time.monotonic()
+        self._unpublished.clear()
         response.success, response.message = True, str(path)
         return response
 
     def _on_stop(self, request, response):
         done = self.stop(self.get_parameter('stop_time').value)
-        response.success = done is not None
-        response.message = f'{done[0]} ({done[1]} messages)' if done else 'not recording'
+        failed = self.rec.failed
+        response.success = done is not None and failed is None
+        response.message = (f'recording failed: {failed}' if failed else
+                            f'{done[0]} ({done[1]} messages)' if done else 'not recording')
         return response
 
     def _on_ready(self, request, response):
@@ -259,11 +344,20 @@ class RecorderNode(bridge.ExplainedParameters, Node):
     def _publish_diagnostics(self) -> None:
         with self._lock:
             values = self.rec.diagnostics()
+            failed = self.rec.failed
+        unpublished = list(self._unpublished.values())
+        values['unpublished'] = ', '.join(self._unpublished)
         lost = values.get('lost', 0)
-        st = DiagnosticStatus(name='recorder', hardware_id='hydropump',
-                              level=DiagnosticStatus.WARN if lost else DiagnosticStatus.OK,
-                              message=f'{lost} messages lost' if lost else
-                              ('recording' if values['recording'] else 'idle'),
+        if failed is not None:
+            level, message = DiagnosticStatus.ERROR, f'write failed: {failed.reason}'
+        elif lost or unpublished:
+            level = DiagnosticStatus.WARN
+            message = '; '.join(([f'{lost} messages lost'] if lost else []) + unpublished)
+        else:
+            level, message = DiagnosticStatus.OK, ('recording' if values['recording']
+                                                   else 'idle')
+        st = DiagnosticStatus(name='recorder', hardware_id='hydropump', level=level,
+                              message=message,
                               values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
         self._pub_diag.publish(DiagnosticArray(status=[st]))
 
