@@ -63,11 +63,11 @@ def _main(capsys, *argv):
     return code, out, err.strip().splitlines()
 
 
-@pytest.mark.parametrize('value', ['0', '-1', 'nan', 'inf'])
+@pytest.mark.parametrize('value', ['0', '-1', 'nan', 'inf', '2'])
 def test_analyze_refuses_a_period_that_is_not_a_positive_number(capsys, tmp_path, value):
     code, out, err = _main(capsys, 'analyze', '--T', value, '--out', str(tmp_path / 'a'))
     assert code == 2 and out == ''
-    assert err == [f'error: --T {value}: expected a finite number > 0 (s)']
+    assert err == [f'error: --T {value}: expected a finite number from 0.0001 to 1 (s)']
     assert not (tmp_path / 'a').exists()
 
 

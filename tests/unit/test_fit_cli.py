@@ -132,12 +132,16 @@ def bad_inputs(tmp_path_factory, bags):
     ('text', [], 'is not a rosbag2 bag'),
     ('missing', [], 'no such file or directory'),
     ('good', ['--lowpass-flow', '20'], 'flow alone is filtered'),
-    ('good', ['--td-bounds', '0.3', '0.1'], 'td bounds'),
-    ('good', ['--tau-bounds', '0.01', 'inf'], 'tau bounds must satisfy 0 < lower < upper < inf'),
-    ('good', ['--start', 'nan', '0.1', '0.05'], 'expected finite values, tau > 0 and td >= 0'),
-    ('good', ['--start', '100', '-0.1', '0.05'], 'start (G0, tau, td) = (100.0, -0.1, 0.05)'),
-    ('good', ['--dt', 'nan'], '--dt nan: expected a finite number > 0 (s)'),
-    ('good', ['--dt', '0'], '--dt 0: expected a finite number > 0 (s)'),
+    ('good', ['--td-bounds', '0.3', '0.1'], '--td-bounds 0.3 0.1: expected LO < HI'),
+    ('good', ['--tau-bounds', '0.01', 'inf'],
+     '--tau-bounds 0.01 inf: HI = inf, expected a finite number > 0 and <= 10 (s)'),
+    ('good', ['--start', 'nan', '0.1', '0.05'], '--start nan 0.1 0.05: G0 = nan, expected a '
+     'finite number > 0'),
+    ('good', ['--start', '100', '-0.1', '0.05'], '--start 100 -0.1 0.05: TAU = -0.1, expected '
+     'a finite number > 0 and <= 10 (s)'),
+    ('good', ['--dt', 'nan'], '--dt nan: expected a finite number from 0.0001 to 0.1 (s)'),
+    ('good', ['--dt', '0'], '--dt 0: expected a finite number from 0.0001 to 0.1 (s)'),
+    ('good', ['--dt', '1e-9'], '--dt 1e-9: expected a finite number from 0.0001 to 0.1 (s)'),
 ])
 def test_bad_input_is_one_line_and_exit_code_2(bad_inputs, capsys, case, extra, expect):
     code, out, err = _run(capsys, str(bad_inputs[case]), *extra, '--no-report',

@@ -7,37 +7,41 @@ One module per group of sub-commands:
 - :mod:`.fit` - ``fit`` (identification from bags);
 - :mod:`.calibrate` - ``calibrate``, ``validate`` (the plant model fitted to bags);
 - :mod:`.control` - ``design``, ``closed-loop``;
+- :mod:`.sweep` - ``sweep`` (parameter sweeps and tolerance studies on Dask);
 - :mod:`.record` - ``record`` (a recording plan through the ROS nodes, found through an
   entry point: nothing here imports ROS);
 - :mod:`._common` - what they share: :class:`~._common.UsageError`, the output folder,
   checks of option values.
 
-Every user mistake (bad parameters, scenario, bag, option value, a missing file) is a
-:class:`hydropump_sim.errors.HydropumpError`: :func:`main` prints one ``error:`` line per
-problem and exits with code 2. Ctrl-C exits with 130. Anything else is a bug and keeps its
-traceback.
+Every number an option takes is checked as the arguments are parsed (:class:`._common.Number`),
+before any work. Every user mistake (bad parameters, scenario, bag, option value, a missing
+file) is a :class:`hydropump_sim.errors.HydropumpError`: :func:`main` prints one ``error:`` line
+per problem and exits with code 2. Ctrl-C exits with 130, a closed pipe (``| head``) with 141.
+Anything else is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from hydropump_sim.errors import HydropumpError
 
-from . import calibrate, circuit, control, fit, plant, record
+from . import calibrate, circuit, control, fit, plant, record, sweep
+from ._common import Parser
 
 # Each adds its sub-commands; a command's ``func(args)`` returns the exit code.
 COMMANDS = (plant.register, circuit.register, fit.register, calibrate.register,
-            control.register, record.register)
+            control.register, record.register, sweep.register)
 
 __all__ = ['COMMANDS', 'build_parser', 'main']
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The parser of every sub-command."""
-    ap = argparse.ArgumentParser(prog='hydropump', description=__doc__.splitlines()[0])
-    sub = ap.add_subparsers(dest='command', required=True)
+    ap = Parser(prog='hydropump', description=__doc__.splitlines()[0])
+    sub = ap.add_subparsers(dest='command', required=True)  # each a Parser too
     for register in COMMANDS:
         register(sub)
     return ap
@@ -54,8 +58,8 @@ def error_lines(exc: HydropumpError) -> list[str]:
 
 def main(argv=None) -> int:
     """Run ``hydropump`` with ``argv`` (default: the command line); the exit code."""
-    args = build_parser().parse_args(argv)
     try:
+        args = build_parser().parse_args(argv)  # a refused number is a UsageError
         return args.func(args)
     except HydropumpError as exc:
         for line in error_lines(exc):
@@ -64,3 +68,8 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print('interrupted', file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        # The reader has gone (``hydropump design | head``): stop quietly, and let the flush
+        # at exit write nowhere rather than fail again. 128 + SIGPIPE, as a shell reports it.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141

@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from ._common import output_file, overrides, positive, UsageError
+from ._common import float_in, output_file, overrides, positive_float, UsageError
 
 UNITS = {'Pa': (1e-5, 'bar'), 'm^3/s': (60000.0, 'L/min')}
 
@@ -25,8 +25,8 @@ def register(sub) -> None:
     c = sub.add_parser('circuit', help='simulate a circuit file (config/circuits/*.yaml) and '
                        "print every signal; --analyze for the paper's method on it")
     c.add_argument('file', help='circuit file, e.g. config/circuits/fig1.yaml')
-    c.add_argument('--duration', type=float, default=1.0,
-                   help='simulated time [s] after the start (default 1)')
+    c.add_argument('--duration', type=positive_float('s', 3600.0),
+                   help="simulated time [s] after the start (default: the scenario's, else 1)")
     c.add_argument('--set', action='append', metavar='NAME=VALUE',
                    help='a parameter or a held input by its dotted name (repeatable)')
     c.add_argument('--control', choices=('margin', 'open', 'hydromechanical'),
@@ -34,8 +34,9 @@ def register(sub) -> None:
                    'open loop for a circuit with nothing to sense)')
     c.add_argument('--algorithm', choices=('emc', 'pi'), help="margin control's law "
                    "(default: the controller configuration's)")
-    c.add_argument('--margin', type=float, help='margin P_l - P_LS [Pa] (default: the '
-                   "controller configuration's)")
+    # The range of the controller's margin set-point.
+    c.add_argument('--margin', type=float_in(1.0e5, 1.0e7, 'Pa'), help='margin P_l - P_LS '
+                   "[Pa] (default: the controller configuration's)")
     c.add_argument('--scenario', help='YAML file: duration, set (dotted values) and inputs '
                    'scheduled in time (the scenario format of hydropump simulate)')
     c.add_argument('--json', action='store_true', help='the final values as JSON on stdout')
@@ -59,7 +60,8 @@ def _scenario(path: str) -> tuple[float | None, dict, dict]:
                          'duration, set, inputs)')
     duration = doc.get('duration')
     if duration is not None and not (isinstance(duration, (int, float))
-                                     and not isinstance(duration, bool) and duration > 0):
+                                     and not isinstance(duration, bool)
+                                     and np.isfinite(duration) and duration > 0):
         raise UsageError(f'--scenario {path}: duration = {duration!r}: expected seconds > 0')
     sets = doc.get('set') or {}
     if not isinstance(sets, dict):
@@ -79,16 +81,14 @@ def cmd_circuit(args) -> int:
     from hydropump_sim.scenario import parse_inputs, ScenarioError
 
     from ..experiments.circuit_loop import run_circuit
-    duration = positive(args.duration, '--duration', 's')
-    if args.margin is not None:
-        positive(args.margin, '--margin', 'Pa')
     csv = output_file(args.csv, ('.csv',), 'CSV') if args.csv else None
     sets = overrides(args.set)
-    inputs_raw = None
+    inputs_raw, duration = None, args.duration
     if args.scenario:
         d, s, inputs_raw = _scenario(args.scenario)
-        duration = d if d is not None and args.duration == 1.0 else duration
+        duration = d if duration is None else duration  # the command line's wins
         sets = {**s, **sets}
+    duration = 1.0 if duration is None else duration
     t0 = time.perf_counter()
     circuit = load_circuit(args.file, sets)
     errors: list[str] = []
@@ -100,7 +100,7 @@ def cmd_circuit(args) -> int:
     if control is None:
         control = 'margin' if ('ls_pressure' in m or 'load_pressure' in m) and \
             circuit.pump() is not None and circuit.pump().comp.kind == 'pump' else 'open'
-    if control != 'margin' and (args.algorithm or (args.margin and control == 'open')):
+    if control != 'margin' and (args.algorithm or (args.margin is not None and control == 'open')):
         raise UsageError(f'--algorithm and --margin go with --control margin (not {control})')
     run = run_circuit(circuit, duration, inputs, control=control, algorithm=args.algorithm,
                       margin=args.margin)

@@ -21,10 +21,12 @@ from hydropump_sim.params import load_params
 
 from ._common import (
     add_params_option,
+    float_in,
     output_file,
     overrides,
     plant_file,
     positive,
+    positive_float,
     protect_output,
     run_dir,
     UsageError,
@@ -398,12 +400,14 @@ def register(sub) -> None:
     add_params_option(d, 'whose model the design takes')
     d.add_argument('--profile', help='sensor profile whose flow-sensor delay is t_d (default: '
                    'config/bench.yaml as shipped)')
-    d.add_argument('--G0', type=float, help='eq. 19 DC gain [%% per current range] in place '
-                   "of the plant's")
-    d.add_argument('--tau', type=float, help='eq. 19 time constant [s] in place of the '
-                   "plant's 63 %% time")
-    d.add_argument('--t-d', dest='t_d', type=float,
-                   help="eq. 19 delay [s] in place of the profile's flow delay")
+    # The ranges of the controller's embedded model (model.tau, model.t_d); 0 delay is no
+    # delay.
+    d.add_argument('--G0', type=positive_float('% per current range', 1000.0),
+                   help="eq. 19 DC gain [%% per current range] in place of the plant's")
+    d.add_argument('--tau', type=float_in(1.0e-3, 10.0, 's'), help='eq. 19 time constant [s] '
+                   "in place of the plant's 63 %% time")
+    d.add_argument('--t-d', dest='t_d', type=float_in(0.0, 2.0, 's'),
+                   help="eq. 19 delay [s] in place of the profile's flow delay (0: none)")
     d.add_argument('--from-fit', metavar='RESULT.json',
                    help='take G0, tau, t_d from a `hydropump fit` result (the joint fit where '
                         'there is one, else the pooled mean); overrides --G0 --tau --t-d')

@@ -6,7 +6,10 @@ table (or the JSON result with ``--json``) and writes a report folder: ``result.
 ``report.md`` and the Fig. 5 / Fig. 6 plots per set.
 
 Bad input (a missing topic, a flat current, NaNs, a truncated bag without
-``--allow-truncated``, a path that is not a bag) ends with one ``error:`` line and exit code 2.
+``--allow-truncated``, a path that is not a bag) ends with one ``error:`` line and exit code 2,
+and so does a bag that cannot be the pump's (checked against ``--params`` before any fit: a
+current in mA, a flow in L/min, the wrong message type, two runs in one bag, too few samples;
+see ``docs/identification.md``).
 """
 
 from __future__ import annotations
@@ -39,16 +42,17 @@ def register(subparsers) -> None:
     p.add_argument('--no-plots', action='store_true', help='report without figures')
     p.add_argument('--plots-per-set', action='store_true',
                    help='also write Fig. 5 and Fig. 6 of every set on its own')
-    p.add_argument('--start', nargs=3, type=float, metavar=('G0', 'TAU', 'TD'),
+    p.add_argument('--start', nargs=3, action='FOPDT start', metavar=('G0', 'TAU', 'TD'),
                    help='starting point (tau, t_d in s)')
-    p.add_argument('--td-bounds', nargs=2, type=float, metavar=('LO', 'HI'),
+    p.add_argument('--td-bounds', nargs=2, action='delay bounds', metavar=('LO', 'HI'),
                    help='delay bounds [s] (default 0 .. min(0.25, record/8))')
-    p.add_argument('--tau-bounds', nargs=2, type=float, metavar=('LO', 'HI'),
+    p.add_argument('--tau-bounds', nargs=2, action='time-constant bounds', metavar=('LO', 'HI'),
                    help='time-constant bounds [s] (default dt/4 .. min(2, record/4))')
-    p.add_argument('--dt', type=float, help="resampling period [s] (default: the topics')")
-    p.add_argument('--lowpass', type=float, metavar='HZ',
+    p.add_argument('--dt', type='resampling period',
+                   help="resampling period [s] (default: the topics')")
+    p.add_argument('--lowpass', type='cut-off frequency', metavar='HZ',
                    help='zero-phase low-pass of current and flow before the fit')
-    p.add_argument('--lowpass-flow', type=float, metavar='HZ',
+    p.add_argument('--lowpass-flow', type='cut-off frequency', metavar='HZ',
                    help='low-pass of the flow alone: biases t_d, refused without '
                         '--allow-flow-filter')
     p.add_argument('--allow-flow-filter', action='store_true',
@@ -84,7 +88,8 @@ def cmd_fit(args) -> int:
     recs = []
     for path, rec in zip(args.bags, read_recordings(
             args.bags, current_topic=args.current_topic, flow_topic=args.flow_topic,
-            dt=args.dt, allow_truncated=args.allow_truncated, progress=args.progress)):
+            dt=args.dt, allow_truncated=args.allow_truncated, progress=args.progress,
+            params=params, check=())):
         if rec.truncated:
             _warn(f'{path}: truncated bag, fitting its readable part ({rec.truncation})')
         for note in rec.notes:
@@ -132,7 +137,7 @@ def cmd_matrix(args) -> int:
     plant = plant_file(args)
     params = load_params(plant)
     recs = read_recordings(args.bags, allow_truncated=args.allow_truncated,
-                           progress=args.progress)
+                           progress=args.progress, params=params)
     fits = fit_matrix(recs, params=params)
     current = float(np.mean([np.mean(r['solenoid_current']) for r in recs
                              if 'solenoid_current' in r]))

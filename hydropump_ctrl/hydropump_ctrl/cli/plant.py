@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 import time
 
-from ._common import add_params_option, output_file, plant_file, positive, run_dir
+from ._common import add_params_option, float_in, output_file, plant_file, run_dir
 
 RESULT_SUFFIXES = ('.csv', '.npz')
 PLOT_SUFFIXES = ('.png', '.pdf', '.svg', '.jpg', '.jpeg')
@@ -21,7 +21,8 @@ def register(sub) -> None:
     a = sub.add_parser('analyze', help='equilibrium, modes, eqs. 14-16, step and Bode plots')
     add_params_option(a)
     a.add_argument('--out', help='output folder (default: out/analyze-<time>)')
-    a.add_argument('--T', type=float, default=0.05,
+    # The range of the simulator's control_period.
+    a.add_argument('--T', type=float_in(1.0e-4, 1.0, 's'), default=0.05,
                    help='control averaging period of section IV [s] (default 0.05)')
     a.set_defaults(func=cmd_analyze)
     s = sub.add_parser('simulate', help='run a scenario file, write CSV or NPZ and a plot')
@@ -34,7 +35,7 @@ def register(sub) -> None:
 def cmd_analyze(args) -> int:
     from hydropump_sim import analysis
     from hydropump_sim.params import load_params
-    T = positive(args.T, '--T', 's')
+    T = args.T
     t0 = time.perf_counter()
     plant = plant_file(args)
     params = load_params(plant)

@@ -10,14 +10,13 @@ without rclpy, the command says so in one line (``--check`` needs neither).
 from __future__ import annotations
 
 from importlib import metadata, util
-import math
 import os
 from pathlib import Path
 import sys
 
 import yaml
 
-from ._common import add_params_option, plant_file, UsageError
+from ._common import add_params_option, float_in, plant_file, positive_float, UsageError
 
 #: Where ROS packages register what ``hydropump`` runs through the node graph.
 RUNNERS = 'hydropump.runners'
@@ -38,7 +37,8 @@ def register(sub) -> None:
                    'config/bench.yaml; default: ideal sensors)')
     p.add_argument('--out', metavar='DIR', help='folder of the bags (created; needed unless '
                    '--check)')
-    p.add_argument('--rate', type=float, default=RATE, metavar='HZ',
+    # The range of the simulator's publish_rate.
+    p.add_argument('--rate', type=float_in(1.0, 1.0e5, 'Hz'), default=RATE, metavar='HZ',
                    help='measurement rate of the simulator started here [Hz]: 1000 sees the '
                    "line pole's 3.5 ms, which a calibration of line.V_l needs; 200 records "
                    'three times faster (default %(default)g)')
@@ -47,7 +47,7 @@ def register(sub) -> None:
                    'instead of starting a graph')
     p.add_argument('--namespace', default='', metavar='NS',
                    help='namespace of the nodes (default: the root)')
-    p.add_argument('--wait', type=float, default=10.0, metavar='S',
+    p.add_argument('--wait', type=positive_float('s', 3600.0), default=10.0, metavar='S',
                    help='with --attach: how long to look for the nodes [s] (default 10)')
     p.add_argument('--check', action='store_true',
                    help='check the plan and print it; start nothing (needs no ROS)')
@@ -76,11 +76,6 @@ def _check_options(args) -> None:
     if args.attach and (args.params or args.profile):
         raise UsageError('--params and --profile set up the graph that record starts; with '
                          "--attach the running simulator's plant is used (drop them)")
-    if not (math.isfinite(args.wait) and args.wait > 0):
-        raise UsageError(f'--wait {args.wait:g}: expected a finite number > 0 (s)')
-    if not (math.isfinite(args.rate) and args.rate > 0):
-        raise UsageError(f'--rate {args.rate:g}: expected a finite number > 0 (Hz; the '
-                         "simulator's step must divide its period, e.g. 1000, 500, 200)")
     if args.attach and args.rate != RATE:
         raise UsageError("--rate sets up the graph that record starts; with --attach the "
                          "running simulator's publish_rate is used (drop it)")

@@ -17,56 +17,187 @@ simulator's ``~/reset`` and ``pause_at``, one bag per experiment from the record
 ``~/start`` and ``~/stop``. Each node logs to ``<run>/logs/<node>.log`` and is ended by PID.
 A node that fails stops the run with a message that names it and its log. The experiments,
 the analysis of their bags and the report are pure (:mod:`hydropump_ctrl.experiments.campaign`).
+
+The options are checked before anything starts (every number in its range, ``--out`` a folder
+this user can write; ``--jobs`` capped at the CPUs, with a note): one ``error:`` line and exit
+code 2. SIGTERM stops the run: each graph, in this process or in a worker process, ends its
+nodes by PID, and the demo exits with code 143 and one line saying so (Ctrl-C: 130).
 """
 
 from __future__ import annotations
 
-import argparse
+from concurrent.futures import ProcessPoolExecutor
+import contextlib
 from datetime import datetime
+import os
 from pathlib import Path
+import signal
 import sys
+import tempfile
 import time
+from typing import TYPE_CHECKING
 
-from hydropump_ctrl.experiments.campaign import (
-    analyse_campaign,
-    BESIDE,
-    closed_loop_experiments,
-    Experiment,
-    identification_experiments,
-    LOOP_TOPICS,
-    stage_times,
-)
+from hydropump_ctrl.cli._common import float_in, int_in, Parser, UsageError
 from hydropump_sim.errors import HydropumpError
 
-from .orchestration import Graph, Orchestrator, own_domain, run_experiments
+from .orchestration import starting, stop
 
-# ---- the run --------------------------------------------------------------------------------
+if TYPE_CHECKING:
+    from hydropump_ctrl.experiments.campaign import Experiment
 
-def _progress(msg: str) -> None:
-    print(msg, flush=True)
+    from .orchestration import Graph
+
+# The experiments, the orchestration and the analysis are imported where they run: the
+# command line is checked first, at once (their imports take seconds).
+
+#: Exit code of a run stopped by SIGTERM (128 + 15, as a shell reports a process it ended).
+STOPPED = 128 + signal.SIGTERM
+#: How long a stopping run waits for a worker to end its graph [s]: beyond Graph.close's
+#: worst case (each of three nodes 20 s after its SIGINT, then killed).
+STOP_WAIT = 65.0
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog='hydropump-demo', description=__doc__.splitlines()[0])
-    ap.add_argument('--out', help='run folder (default: out/<timestamp>)')
+class Stopped(BaseException):
+    """SIGTERM: the run stops. Raised in the main thread, as Ctrl-C raises KeyboardInterrupt,
+    so that each ``finally`` on the way ends what it started (each graph's nodes by PID)."""
+
+
+def _on_sigterm(signum, frame):
+    # Once: a second SIGTERM must not cut the stop short.
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    stop(Stopped())  # held while a process starts, so that none is left behind
+
+
+def _worker_init() -> None:
+    """In each worker process: SIGTERM (from the run as it stops) unwinds what the worker
+    runs, ending its graph's nodes, and ends the worker with exit code 143; Ctrl-C is left to
+    the run, which stops the workers then."""
+    def on_sigterm(signum, frame):
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        stop(SystemExit(STOPPED))
+    signal.signal(signal.SIGTERM, on_sigterm)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _children(pid: int) -> list[int]:
+    """The PIDs of ``pid``'s child processes (Linux's /proc; none where it is not)."""
+    out = []
+    for task in Path(f'/proc/{pid}/task').glob('*/children'):
+        with contextlib.suppress(OSError, ValueError):
+            out += [int(x) for x in task.read_text().split()]
+    return out
+
+
+def _halt(pool) -> None:
+    """Stop a pool's workers by PID: SIGTERM, so that each ends the graph it runs; a worker
+    still there after :data:`STOP_WAIT` is killed, and its children with it."""
+    procs = list((pool._processes or {}).values())  # the executor's own record of them
+    for proc in procs:
+        if proc.exitcode is None:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(proc.pid, signal.SIGTERM)
+    # The workers' sentinels follow once their tasks have unwound.
+    pool.shutdown(wait=False, cancel_futures=True)
+    deadline = time.monotonic() + STOP_WAIT
+    for proc in procs:
+        proc.join(max(0.0, deadline - time.monotonic()))
+        if proc.exitcode is None:
+            for pid in _children(proc.pid):
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGKILL)
+            proc.kill()
+            proc.join()
+
+
+class _Pool(ProcessPoolExecutor):
+    def submit(self, *args, **kwargs):
+        with starting():  # a worker process may start and be recorded here
+            return super().submit(*args, **kwargs)
+
+
+@contextlib.contextmanager
+def _workers(n: int):
+    """A pool of ``n`` spawned processes, each stopped by PID (:func:`_halt`) when the run
+    stops or fails."""
+    import multiprocessing
+    pool = _Pool(n, mp_context=multiprocessing.get_context('spawn'), initializer=_worker_init)
+    try:
+        yield pool
+        pool.shutdown(wait=True)
+    except BaseException:
+        _halt(pool)
+        raise
+
+
+# ---- the command line -----------------------------------------------------------------------
+
+def build_parser() -> Parser:
+    ap = Parser(prog='hydropump-demo', description=__doc__.splitlines()[0])
+    ap.add_argument('--out', help='run folder (default: out/<timestamp>); checked before '
+                    'anything starts: a folder this user can write, without bags of an '
+                    'earlier run')
     ap.add_argument('--quick', action='store_true',
                     help='a short campaign: three identification experiments, EMC only')
-    ap.add_argument('--sets', type=int, default=None, help='identification experiments')
-    ap.add_argument('--dwell', type=float, default=None, help='stair duration [s]')
+    ap.add_argument('--sets', type=int_in(1, 100),
+                    help='identification experiments (default 9; 3 with --quick)')
+    # A stair holds two time constants of eq. 14 at least (about 0.1 s), and the record of
+    # four stairs then leaves room for the 55 ms delay in the fit's delay bounds; the upper
+    # end is the controller's excitation.dwell range.
+    ap.add_argument('--dwell', type=float_in(0.2, 100.0, 's'),
+                    help='stair duration [s] (default 0.8; 0.6 with --quick)')
     ap.add_argument('--calibrate', action='store_true',
                     help='also calibrate the bench plant from the identification bags, with '
                          'its validation figure in the report (about 25 s more)')
     ap.add_argument('--no-fig1', dest='fig1', action='store_false',
                     help="leave out the Fig. 1 duty cycle (a second graph beside the paper's "
                          'campaign)')
-    ap.add_argument('--jobs', type=int, default=1, metavar='N',
+    ap.add_argument('--jobs', type=int_in(1), default=1, metavar='N',
                     help='run the experiments on N graphs at once, each in its own ROS '
-                         'domain (default 1: one graph)')
-    args = ap.parse_args(argv)
-    if args.jobs < 1:
-        ap.error(f'--jobs {args.jobs}: give 1 or more graphs')
+                         'domain (default 1: one graph; at most the number of CPUs)')
+    return ap
+
+
+def run_folder(out: str | None) -> Path:
+    """The run folder (``--out``, or ``out/<timestamp>``), created and written to once here:
+    one the run could not write is refused before any node starts."""
+    path = Path(out) if out else Path('out') / datetime.now().strftime('%Y%m%d-%H%M%S')
+    what = f'--out {out}'
     try:
-        return run(args)
+        if path.exists() and not path.is_dir():
+            raise UsageError(f'{what}: is a file; give a folder for the run')
+        bags = path / 'bags'
+        if bags.is_dir() and any(bags.iterdir()):
+            raise UsageError(f'{what}: already holds the bags of an earlier run ({bags}); '
+                             'give another folder or remove them')
+        path.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=path):
+            pass
+    except OSError as exc:
+        raise UsageError(f'{what if out else f"run folder {path}"}: cannot write there '
+                         f'({exc.strerror or exc})') from None
+    return path
+
+
+def _progress(msg: str) -> None:
+    print(msg, flush=True)
+
+
+def main(argv=None) -> int:
+    try:
+        args = build_parser().parse_args(argv)  # a refused number is a UsageError
+        cpus = os.cpu_count() or 1
+        if args.jobs > cpus:
+            # More graphs than CPUs only starve each other's lock-step exchanges.
+            print(f'note: --jobs {args.jobs}: this machine runs {cpus} graph'
+                  f'{"s" * (cpus != 1)} at once; using {cpus}', file=sys.stderr)
+            args.jobs = cpus
+        run_dir = run_folder(args.out)
+    except UsageError as exc:
+        print(f'error: {exc}', file=sys.stderr)
+        return 2
+    signal.signal(signal.SIGTERM, _on_sigterm)
+    try:
+        return run(args, run_dir)
     except HydropumpError as exc:
         for line in exc.lines:
             print(f'error: {line}', file=sys.stderr)
@@ -74,12 +205,21 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print('interrupted', file=sys.stderr)
         return 130
+    except Stopped:
+        print(f'stopped by SIGTERM: every node of the run ended; the partial run is in '
+              f'{run_dir}', file=sys.stderr)
+        return STOPPED
 
+
+# ---- the run --------------------------------------------------------------------------------
 
 def _run_stage(graph: Graph, what: str, stage: int, exps: list[Experiment], bag_dir: Path,
                starts: dict, tag: str = '') -> dict:
     """Run ``exps`` one after the other through ``graph``, with progress lines; the stage's
     times (:func:`stage_times`)."""
+    from hydropump_ctrl.experiments.campaign import stage_times
+
+    from .orchestration import run_experiments
     t0, running0 = time.perf_counter(), graph.running_s
     done = run_experiments(graph, exps, bag_dir,
                            lambda i, _: f'{tag}[{stage}/5 {what} {i}/{len(exps)}]', _progress)
@@ -89,14 +229,22 @@ def _run_stage(graph: Graph, what: str, stage: int, exps: list[Experiment], bag_
 
 
 def run_graph(stages: dict[str, list[Experiment]], run_dir: Path, log_dir: Path,
-              profile_path: Path, tag: str = '', topics: list[str] = LOOP_TOPICS,
+              profile_path: Path, tag: str = '', topics: list[str] | None = None,
               **start) -> tuple[dict, dict]:
     """One graph in a ROS domain of its own: start it (``start``: more of
-    :meth:`Graph.start`'s keywords), run each stage's experiments into ``run_dir/bags``,
-    stop it. Returns the stage times and each experiment's start time."""
+    :meth:`Graph.start`'s keywords), run each stage's experiments into ``run_dir/bags``
+    (``topics`` recorded: the closed loop's by default), stop it, its nodes ended by PID
+    whatever ends the run (SIGTERM included). Returns the stage times and each experiment's
+    start time."""
+    from hydropump_ctrl.experiments.campaign import LOOP_TOPICS, stage_times
+
+    from .orchestration import Graph, Orchestrator, own_domain
+    topics = LOOP_TOPICS if topics is None else topics
     walls, starts = {}, {}
     with own_domain() as did:
-        orch = Orchestrator()
+        # rclpy's own signal handlers would shut the context down under a running
+        # experiment (an RCLError): a signal unwinds this run instead (Stopped).
+        orch = Orchestrator(signals=False)
         try:
             t0 = time.perf_counter()
             _progress(f'{tag}[0/5 graph] simulator, controller and recorder (ROS domain {did})'
@@ -127,13 +275,11 @@ def _split(exps: list[Experiment], n: int) -> list[list[Experiment]]:
 
 def _run_jobs(stages: dict, run_dir: Path, profile_path: Path, jobs: int) -> tuple[dict, dict]:
     """The experiments over ``jobs`` graphs at once, each in its own process and domain."""
-    from concurrent.futures import ProcessPoolExecutor
-    import multiprocessing
+    from hydropump_ctrl.experiments.campaign import stage_times
     exps = [e for group in stages.values() for e in group]
     groups = _split(exps, jobs)
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(len(groups), mp_context=multiprocessing.get_context('spawn')) \
-            as pool:
+    with _workers(len(groups)) as pool:
         futures = [pool.submit(run_graph, {'experiments': g}, run_dir,
                                run_dir / 'logs' / f'graph{k + 1}', profile_path,
                                f'[graph {k + 1}] ') for k, g in enumerate(groups)]
@@ -170,28 +316,27 @@ def _start_fig1(pool, run_dir: Path, profile_path: Path, quick: bool):
     return exps, future
 
 
-def run(args) -> int:
+def run(args, run_dir: Path) -> int:
+    from hydropump_ctrl.experiments.campaign import (
+        analyse_campaign,
+        BESIDE,
+        closed_loop_experiments,
+        identification_experiments,
+    )
     from hydropump_sim.params import default_params_path, load_params
     from hydropump_sim.sensors import load_profile
     t_all = time.perf_counter()
-    run_dir = Path(args.out) if args.out else Path('out') / datetime.now().strftime(
-        '%Y%m%d-%H%M%S')
-    run_dir.mkdir(parents=True, exist_ok=True)
     params = load_params(default_params_path())
     profile_path = default_params_path().with_name('bench.yaml')
     profile = load_profile(profile_path)
-    n_sets = args.sets or (3 if args.quick else 9)
-    dwell = args.dwell or (0.6 if args.quick else 0.8)  # s: eight tau a stair
+    n_sets = args.sets if args.sets is not None else 3 if args.quick else 9
+    dwell = args.dwell if args.dwell is not None else 0.6 if args.quick else 0.8  # s: 8 tau
     idents = identification_experiments(params, n_sets, dwell)
     loops = closed_loop_experiments(params, ('emc',) if args.quick else ('emc', 'pi'))
     _progress(f'run folder: {run_dir}')
-    from concurrent.futures import ProcessPoolExecutor
-    import multiprocessing
-    spawn = multiprocessing.get_context('spawn')
     # Two processes for the report's work that needs neither the graph nor the fit (the
     # operating map and dither figures, the plant's twin): they run beside the fit.
-    with ProcessPoolExecutor(2, mp_context=spawn) as pool, \
-            ProcessPoolExecutor(1, mp_context=spawn) as beside:
+    with _workers(2) as pool, _workers(1) as beside:
         # The Fig. 1 duty cycle: a graph of its own, beside the paper's campaign.
         duty = _start_fig1(beside, run_dir, profile_path, args.quick) if args.fig1 else None
         # 1. The identification campaign, then 2. the closed loop; the stages are numbered

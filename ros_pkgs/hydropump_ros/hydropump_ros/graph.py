@@ -17,6 +17,7 @@ import subprocess
 import sys
 import time
 
+from hydropump_ctrl.cli._common import float_in, Parser, UsageError
 from hydropump_sim.params import default_params_path
 
 NODES = ('simulator', 'controller', 'recorder')
@@ -47,7 +48,9 @@ def graph_commands(args) -> dict[str, list[str]]:
         sim += _p('scenario_file', args.scenario_file)
     if args.circuit_file:
         sim += _p('circuit_file', args.circuit_file)
-    ctrl = _p('autostart', not args.no_autostart)
+    # Lock-step: a simulation held back by a slow peer is no fault of the measurements.
+    ctrl = _p('autostart', not args.no_autostart) + _p('watchdog.simulation_time',
+                                                        args.lock_step)
     if args.controller_params:
         ctrl += _p('config_file', args.controller_params)
     rec = _p('compression', args.compression)
@@ -65,7 +68,7 @@ def graph_commands(args) -> dict[str, list[str]]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog='hydropump-graph', description=__doc__.splitlines()[0])
+    ap = Parser(prog='hydropump-graph', description=__doc__.splitlines()[0])
     ap.add_argument('--namespace', default='', help='namespace of the suite (e.g. pump1)')
     ap.add_argument('--use-sim-time', action='store_true',
                     help='ROS clock of the nodes on /clock (the suite follows /clock anyway)')
@@ -76,7 +79,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument('--controller-params', default=None, help='e.g. config/controller.yaml')
     ap.add_argument('--scenario-file', default=None, help='inputs scheduled in simulation time')
     ap.add_argument('--lock-step', action='store_true', help='simulator in lock-step mode')
-    ap.add_argument('--real-time-factor', type=float, default=1.0, help='0 = as fast as possible')
+    # The simulator's real_time_factor range; 0 is its own setting, not a default.
+    ap.add_argument('--real-time-factor', type=float_in(0.0, 1000.0), default=1.0,
+                    help='simulated s per wall s (default 1; 0 = as fast as possible)')
     ap.add_argument('--start-paused', action='store_true', help='wait for simulator/pause false')
     ap.add_argument('--no-autostart', action='store_true', help='leave the controller '
                     'unconfigured (configure and activate it with its lifecycle services)')
@@ -90,7 +95,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)  # a refused number is a UsageError
+    except UsageError as exc:
+        print(f'error: {exc}', file=sys.stderr)
+        return 2
     args.params_file = args.params_file or default_params_path()
     for name in ('params_file', 'circuit_file', 'sensor_profile', 'controller_params',
                  'scenario_file'):
