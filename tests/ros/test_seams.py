@@ -243,23 +243,33 @@ def test_help_prints_the_parameters_and_does_not_start(node):
     assert 'parameters (SI units):' in proc.stdout
 
 
-def test_a_second_simulator_in_the_domain_refuses_to_start(tmp_path, nodes, test_node):
+def test_a_second_simulator_in_the_namespace_refuses_having_published_nothing(
+        tmp_path, nodes, test_node):
+    """One simulator per namespace: a second one in the same namespace refuses before its
+    first step (the first one's clock never goes back), one in another namespace runs on
+    its own clock topic."""
     from rosgraph_msgs.msg import Clock
 
     from hydropump_ros.simulator_node import DISCOVERY_WINDOW
     nodes.start('simulator')
-    clocks = []
-    test_node.create_subscription(Clock, '/clock', clocks.append, 10)
+    clocks, other = [], []
+    test_node.create_subscription(Clock, '/clock', clocks.append, 1000)
+    test_node.create_subscription(Clock, '/pump2/clock', other.append, 10)
     # The first one is past its own look-out window (two started together both refuse).
     spin_until(test_node, lambda: clocks and clocks[-1].clock.sec > DISCOVERY_WINDOW + 0.5,
                60, 'the first simulator to run for a while')
-    # In another namespace, and in the same one (where both have the same name).
-    for ns in ('/pump2', '/'):
-        proc = subprocess.run([executable('simulator'), '--ros-args', '-r', f'__ns:={ns}'],
-                              capture_output=True, text=True, timeout=60)
-        assert proc.returncode == 2
-        assert 'another node publishes /clock in this ROS domain (/simulator)' in \
-            proc.stdout + proc.stderr
+    proc = subprocess.run([executable('simulator'), '--ros-args', '-r', '__ns:=/'],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    assert 'another node publishes /clock in this ROS domain (/simulator)' in \
+        proc.stdout + proc.stderr
+    spin_until(test_node, lambda: clocks[-1].clock.sec > DISCOVERY_WINDOW + 1.5, 30,
+               'more of the first clock')
+    t = [c.clock.sec * 10**9 + c.clock.nanosec for c in clocks]
+    assert all(b > a for a, b in zip(t, t[1:]))   # nothing from the refused one
+    pump2 = nodes.start('simulator', '-r', '__ns:=/pump2')
+    spin_until(test_node, lambda: len(other) > 10, 30, 'the clock of /pump2')
+    assert pump2.alive() and 'another node' not in pump2.log()
 
 
 def test_a_controller_resumes_bumplessly_when_its_simulator_restarts(nodes, test_node):

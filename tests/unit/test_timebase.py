@@ -178,6 +178,35 @@ def test_a_restarted_simulator_resumes_bumpless_within_one_period(ctrl_config, p
     assert outs[0].command == pytest.approx(before, abs=2e-3)
 
 
+def test_a_lock_step_watchdog_counts_simulation_time_not_wall_seconds(ctrl_config, params):
+    """With watchdog.simulation_time a simulation held back for minutes (a slow recorder, a
+    loaded machine) trips nothing; measurements lost while its clock runs do, after the
+    same timeouts in simulation time."""
+    clock = Clock()
+    sup = Supervisor(ctrl_config, Watchdog(hold_timeout=0.2, safe_timeout=1.0,
+                                           simulation_time=True), clock=clock,
+                     log=lambda *a: None)
+    sup.activate()
+    for k in range(10):
+        _feed(sup, k, 0.5 * params.Q_max)
+    clock.t += 120.0                     # the clock stands still for two minutes of wall time
+    assert sup.check_watchdog() is None and sup.mode_state == 'running'
+    # The clock runs on without measurements: 0.3 s of simulation time holds, 1.5 s is safe.
+    sup.clock(309 * MS, 10 ** 12 + 400_000)
+    assert sup.check_watchdog() is None and sup.mode_state == 'hold'
+    sup.clock(1509 * MS, 10 ** 12 + 500_000)
+    out = sup.check_watchdog()
+    assert sup.mode_state == 'safe' and out.command == ctrl_config.limits.safe_current
+    # The steady-clock default trips on the same stall.
+    wall = Supervisor(ctrl_config, Watchdog(hold_timeout=0.2, safe_timeout=1.0), clock=clock,
+                      log=lambda *a: None)
+    wall.activate()
+    for k in range(10):
+        _feed(wall, k, 0.5 * params.Q_max)
+    clock.t += 2.0
+    assert wall.check_watchdog() is not None and wall.mode_state == 'safe'
+
+
 def test_watchdog_holds_then_commands_the_safe_current_then_resumes(ctrl_config, params):
     clock = Clock()
     sup = Supervisor(ctrl_config, Watchdog(hold_timeout=0.2, safe_timeout=1.0), clock=clock,
@@ -321,3 +350,27 @@ def test_a_restart_after_a_reset_ignores_the_current_from_before_it(ctrl_config,
     outs = _feed(sup, 55, q_new)   # the reset state, at the next instant
     assert len(outs) == 1
     assert outs[0].command == pytest.approx(sup.ctrl._pump.current(q_new), abs=2e-3)
+
+
+def test_a_controller_that_never_had_a_measurement_warns_after_its_timeout(ctrl_config,
+                                                                          params):
+    clock = Clock()
+    logs = []
+    sup = Supervisor(ctrl_config, Watchdog(hold_timeout=0.2, safe_timeout=1.0), clock=clock,
+                     log=lambda lvl, txt: logs.append((lvl, txt)))
+    sup.activate()
+    clock.t = 0.9
+    sup.check_watchdog()
+    assert sup.status() == ('ok', 'ok') and not logs   # discovery may take that long
+    clock.t = 1.1
+    sup.check_watchdog()
+    sup.check_watchdog()
+    assert sup.status() == ('warn', 'no measurement received yet')
+    assert sup.diagnostics()['measurements_received'] is False
+    assert [lvl for lvl, txt in logs if 'no measurement' in txt] == ['warn']  # said once
+    # A measurement ends it; later silence is the watchdog's (stale, then lost).
+    _feed(sup, 0, 1.0e-3)
+    assert sup.status() == ('ok', 'ok')
+    clock.t = 1.5
+    sup.check_watchdog()
+    assert sup.status() == ('warn', 'measurements stale: holding')

@@ -12,7 +12,9 @@
 - **The watchdogs** (steady clock, so a stopped ``/clock`` cannot hide a dead peer): no
   measurement for ``watchdog.hold_timeout`` stops the updates (the plant holds the last
   command); after ``watchdog.safe_timeout`` the safe current is commanded until
-  measurements come back, then the law restarts bumplessly.
+  measurements come back, then the law restarts bumplessly. With
+  ``watchdog.simulation_time`` (lock-step runs) the ages are simulation time: a simulation
+  held back by a slow peer or a loaded machine advances no time, so it trips nothing.
 - **Bumpless (re)start** through :meth:`Controller.reset` from the measurements.
 - **Live parameters**: checked against the schema and the configuration, applied at the next
   update.
@@ -49,6 +51,10 @@ class Watchdog:
                                live=True)
     safe_timeout: float = spec('s', 'steady-clock age after which the safe current is '
                                'commanded', 0.01, 600.0, default=1.0, live=True)
+    simulation_time: bool = spec('-', 'count the ages in simulation time where a clock '
+                                 'runs (lock-step: a simulation that waits for a slow peer '
+                                 'trips nothing; measurements lost while it runs do)',
+                                 default=False, live=True)
 
     def cross_checks(self) -> list[str]:
         if self.safe_timeout < self.hold_timeout:
@@ -122,7 +128,9 @@ class Supervisor:
         self.mode_state = 'running'
         self._pending: ControllerConfig | None = None
         self._last_rx: float | None = None
+        self._last_rx_sim: int | None = None  # the latest simulation time then [ns]
         self._first_rx: float | None = None
+        self._listening = clock()  # since when a first measurement is awaited
         self._wall = False
         self._clear_time()
 
@@ -148,6 +156,8 @@ class Supervisor:
         self._needs_reset = True
         self._t_prev = None
         self.active = True
+        if self._first_rx is None:
+            self._listening = self._clock()
         return self._maybe_update()
 
     def deactivate(self) -> None:
@@ -160,6 +170,7 @@ class Supervisor:
         """A measurement sample (SI, absolute pressures): with its header stamp, or, for an
         unstamped topic, its DDS source timestamp."""
         self._last_rx = self._clock()
+        self._last_rx_sim = self.time.latest
         if self._first_rx is None:
             self._first_rx = self._last_rx
         if self.mode_state != 'running':
@@ -229,9 +240,14 @@ class Supervisor:
 
     def check_watchdog(self) -> Output | None:
         """Run the watchdog (call it every few tens of ms); may command the safe current."""
+        if self._listening is not None and self.never_measured():
+            self._listening = None  # said once
+            self._log('warn', f'no measurement received yet ({self.watchdog.safe_timeout:g} s '
+                              'after start): is a simulator running in this namespace and '
+                              'ROS domain?')
         if not self.active or self._last_rx is None:
             return None
-        age = self._clock() - self._last_rx
+        age = self._age()
         safe = self.config.limits.safe_current
         if age > self.watchdog.safe_timeout:
             if self.mode_state != 'safe':
@@ -245,6 +261,14 @@ class Supervisor:
                 self._log('warn', f'measurements stale ({age:.2f} s): holding the command')
             self.mode_state = 'hold'
         return None
+
+    def _age(self) -> float:
+        """The measurements' age [s]: steady time since the last one, or, with
+        ``watchdog.simulation_time`` while a clock runs, the simulation time since."""
+        if self.watchdog.simulation_time and self.time.present:
+            latest, then = self.time.latest, self._last_rx_sim
+            return 0.0 if latest is None or then is None else max(latest - then, 0) * 1e-9
+        return self._clock() - self._last_rx
 
     def _resume(self) -> None:
         """Measurements are back: restart the law from them at the next instant."""
@@ -369,11 +393,30 @@ class Supervisor:
         st['command'] = command
         return st
 
+    def never_measured(self) -> bool:
+        """No measurement has ever come, for longer than ``watchdog.safe_timeout``: no
+        simulator or sensor in the graph (a wrong namespace, a missing node). The watchdog
+        cannot say so (it times the age of the last measurement), nor can ``updates: 0``."""
+        return self._first_rx is None and (
+            self._listening is None  # already said
+            or self._clock() - self._listening > self.watchdog.safe_timeout)
+
+    def status(self) -> tuple[str, str]:
+        """``(level, message)`` of ``/diagnostics``: ``ok`` or ``warn``."""
+        if self.never_measured():
+            return 'warn', 'no measurement received yet'
+        message = {'running': 'ok', 'hold': 'measurements stale: holding',
+                   'safe': 'measurements lost: safe current'}[self.mode_state]
+        bad = (self.mode_state != 'running' or self.counts['rejected_nan']
+               or self.counts['rejected_range'])
+        return ('warn' if bad else 'ok'), message
+
     def diagnostics(self) -> dict[str, Any]:
         """A snapshot for ``/diagnostics``."""
-        age = (self._clock() - self._last_rx) if self._last_rx is not None else math.nan
+        age = self._age() if self._last_rx is not None else math.nan
         state = self.ctrl.state()
         return {'active': self.active, 'watchdog': self.mode_state,
+                'measurements_received': self._first_rx is not None,
                 'measurement_age_s': age, 'clock': 'simulation' if self.time.present
                 else 'wall', **self.counts,
                 **{k: state.get(k) for k in ('mode', 'algorithm', 'reference', 'command',

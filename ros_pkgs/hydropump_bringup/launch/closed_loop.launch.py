@@ -1,4 +1,5 @@
-"""Simulator, controller and recorder of one pump, in one namespace.
+"""Simulator, controller and recorder of one pump, in one namespace (and, with
+``foxglove:=true``, the live view on ``ws://127.0.0.1:<foxglove_port>``).
 
     ros2 launch hydropump_bringup closed_loop.launch.py namespace:=pump1 \
         sensor_profile:=<share>/config/bench.yaml lock_step:=true bag:=/tmp/run1
@@ -44,6 +45,9 @@ ARGUMENTS = [
     ('bag', '', 'bag folder of the recorder; empty = bags/recorder_<time> in the working '
                 'directory'),
     ('compression', 'zstd', 'MCAP chunk compression of the bag: zstd or none'),
+    ('foxglove', 'false', 'start the foxglove node: the topics live over the Foxglove '
+                          'WebSocket protocol (config/foxglove/hydropump.json is a layout)'),
+    ('foxglove_port', '8765', 'TCP port of the foxglove node (on 127.0.0.1)'),
 ]
 
 
@@ -78,12 +82,20 @@ def _nodes(context):
         Node(package='hydropump_ros', executable='simulator', name='simulator', **common,
              parameters=[a['params_file'], a['sensor_profile'], sim_time, sim]),
         LifecycleNode(package='hydropump_ros', executable='controller', name='controller',
-                      **common, parameters=[sim_time, {'config_file': a['controller_params'],
-                                                       'autostart': flag('autostart')}]),
+                      **common, parameters=[sim_time, {
+                          'config_file': a['controller_params'],
+                          'autostart': flag('autostart'),
+                          # Lock-step: a simulation held back by a slow peer is no fault.
+                          'watchdog.simulation_time': flag('lock_step')}]),
     ]
     if flag('record'):
         nodes.append(Node(package='hydropump_ros', executable='recorder', name='recorder',
                           **common, parameters=[sim_time, rec]))
+    if flag('foxglove'):
+        # Its default topics and discovery take the circuit's topics as they appear.
+        nodes.append(Node(package='hydropump_ros', executable='foxglove', name='foxglove',
+                          **common, parameters=[sim_time,
+                                                {'port': int(a['foxglove_port'])}]))
     return nodes
 
 

@@ -10,6 +10,10 @@ from __future__ import annotations
 from builtin_interfaces.msg import Time
 
 NS = 1_000_000_000
+# The simulator's clock topic, relative: ``/clock`` in the root namespace as ROS tools expect,
+# ``/<ns>/clock`` for a pump in namespace ``<ns>``, so that several pumps share a domain,
+# each node following the simulator of its own namespace (docs/ros.md).
+CLOCK = 'clock'
 
 
 def absolute(gauge: float, p_atm: float) -> float:
@@ -52,7 +56,7 @@ class ClockWriter:
         self._last: int | None = None
 
     def refresh(self) -> None:
-        infos = self._node.get_publishers_info_by_topic('/clock')
+        infos = self._node.get_publishers_info_by_topic(CLOCK)
         if infos:
             self.tag = tuple(sorted(bytes(i.endpoint_gid) for i in infos))
 

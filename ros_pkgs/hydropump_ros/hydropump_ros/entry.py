@@ -6,11 +6,11 @@
 - SIGINT, a second SIGINT (``ros2 launch`` forwards a terminal's Ctrl-C, so each node gets
   two), and SIGTERM each end the node with exit code 0 and no traceback, at any moment,
   start-up included: the executables' entry points (:func:`simulator`, :func:`controller`,
-  :func:`recorder`) install the handlers before the heavy imports; rclpy's own handlers are
-  never installed. The first signal asks the node to stop, later ones are ignored. The
-  executor spins in a thread while the main thread waits for the signal, then the node's
-  ``close()`` stops its own work (stepping thread, take loop, open bag) *before* the executor
-  and the context go, so nothing publishes on a dead context.
+  :func:`recorder`, :func:`foxglove`) install the handlers before the heavy imports; rclpy's
+  own handlers are never installed. The first signal asks the node to stop, later ones are
+  ignored. The executor spins in a thread while the main thread waits for the signal, then
+  the node's ``close()`` stops its own work (stepping thread, take loop, open bag) *before*
+  the executor and the context go, so nothing publishes on a dead context.
 
 This module stays light (no rclpy, no numerics at import): it runs first.
 """
@@ -44,6 +44,9 @@ def install_signal_handlers() -> threading.Event:
 
 def _launch(module: str) -> int:
     install_signal_handlers()
+    # The launcher (venv_index) starts Python with these blocked: one that came during the
+    # interpreter's start is delivered now, to the handlers above.
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
     try:
         mod = importlib.import_module(f'hydropump_ros.{module}')
     except KeyboardInterrupt:  # a Ctrl-C before our handlers were in place
@@ -64,6 +67,11 @@ def controller() -> int:
 def recorder() -> int:
     """Entry point of ``ros2 run hydropump_ros recorder``."""
     return _launch('recorder_node')
+
+
+def foxglove() -> int:
+    """Entry point of ``ros2 run hydropump_ros foxglove``."""
+    return _launch('foxglove_node')
 
 
 def dds_profile() -> None:

@@ -26,13 +26,46 @@ import random
 import signal
 import subprocess
 import time
+from typing import TYPE_CHECKING
 
-from hydropump_ctrl.experiments.campaign import Experiment
 from hydropump_sim.errors import HydropumpError
+
+if TYPE_CHECKING:  # light to import: a signal handler of the run uses stop()
+    from hydropump_ctrl.experiments.campaign import Experiment
 
 
 class GraphError(HydropumpError):
     """A failure of the graph that ends the run: one line for the user."""
+
+
+# ---- a stop by signal -----------------------------------------------------------------------
+
+_starting = 0  # process starts under way in this process (starting())
+_held: list[BaseException] = []  # a stop that came during one
+
+
+def stop(exc: BaseException) -> None:
+    """Raise ``exc`` from a signal handler that ends the run, or, while a process is being
+    started and recorded (:func:`starting`), hold it until that is done: a process started
+    but not yet recorded would be left running."""
+    if _starting:
+        _held[:] = [exc]
+        return
+    raise exc
+
+
+@contextlib.contextmanager
+def starting():
+    """Start a process and record it (in :attr:`Orchestrator.procs`, in a process pool)
+    inside this block: a :func:`stop` is held until its end."""
+    global _starting
+    _starting += 1
+    try:
+        yield
+    finally:
+        _starting -= 1
+        if not _starting and _held:
+            raise _held.pop()
 
 
 def executable(name: str) -> str:
@@ -65,16 +98,22 @@ def _stamp_s(stamp) -> float:
 class Orchestrator:
     """The run's own rclpy node, in ``namespace`` (where the graph's nodes are): service
     calls, parameter sets, the latest ``/clock`` (:attr:`t`) and the latest update instant of
-    the controller (:attr:`ctrl_t`, from its ``~/state``)."""
+    the controller (:attr:`ctrl_t`, from its ``~/state``).
 
-    def __init__(self, namespace: str = ''):
+    ``signals=False`` keeps rclpy's signal handlers out: the caller's own then stop the run
+    (rclpy's shut the context down under a waiting call, which fails with an RCLError)."""
+
+    def __init__(self, namespace: str = '', *, signals: bool = True):
         import rclpy
         from rclpy.node import Node
         from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+        from rclpy.signals import SignalHandlerOptions
         from rosgraph_msgs.msg import Clock
         from sensor_msgs.msg import JointState
+
+        from .conversions import CLOCK
         self.rclpy = rclpy
-        rclpy.init()
+        rclpy.init(signal_handler_options=None if signals else SignalHandlerOptions.NO)
         self.namespace = '/' + namespace.strip('/') if namespace.strip('/') else ''
         self.node = Node(f'hydropump_run_{os.getpid()}', namespace=self.namespace or None)
         self.t = -1.0
@@ -82,7 +121,7 @@ class Orchestrator:
         # Only the latest time matters here: one callback per spin, not one per step.
         latest = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                             history=HistoryPolicy.KEEP_LAST)
-        self.node.create_subscription(Clock, '/clock', self._on_clock, latest)
+        self.node.create_subscription(Clock, CLOCK, self._on_clock, latest)
         self.node.create_subscription(JointState, 'controller/state', self._on_state, latest)
         self._clients = {}
         self.procs: dict = {}
@@ -235,12 +274,15 @@ class Graph:
             'controller': _ros_args(ctrl),
         }
         t0 = time.perf_counter()
-        for name in NODES:
-            log = log_dir / f'{name}.log'
-            proc = subprocess.Popen([executable(name), '--ros-args', *ns, *commands[name]],
-                                    stdout=open(log, 'w'), stderr=subprocess.STDOUT)
-            orch.procs[name] = (proc, log, 'the graph')
         try:
+            # Each node in orch.procs as it starts: whatever interrupts the start-up (a
+            # signal included) ends those already started.
+            for name in NODES:
+                log = log_dir / f'{name}.log'
+                with starting():
+                    orch.procs[name] = (subprocess.Popen(
+                        [executable(name), '--ros-args', *ns, *commands[name]],
+                        stdout=open(log, 'w'), stderr=subprocess.STDOUT), log, 'the graph')
             graph._wait_ready(t0, 60.0)
             graph._prime()
         except BaseException:

@@ -36,12 +36,15 @@ from hydropump_sim.schema import assignments, check_all, ParamError, read_params
 from hydropump_sim.sensors import load_profile, SensorConfig, SensorProfile
 
 from . import bridge, entry
-from .conversions import absolute, seconds_to_ns, set_stamp, stamp
+from .conversions import absolute, CLOCK, seconds_to_ns, set_stamp, stamp
 
-# How long a new simulator keeps looking for another /clock publisher [s]: discovery on a
-# loaded machine can take seconds. Two simulators started within this of each other both
-# refuse; a later one refuses alone.
+# How long a new simulator keeps looking for another publisher of its clock topic [s]:
+# discovery on a loaded machine can take seconds. Two simulators started within this of each
+# other both refuse; a later one refuses alone. It takes its first step only after
+# FIRST_LOOK without one: a simulator that refuses has published nothing (on localhost an
+# existing writer is discovered well within it).
 DISCOVERY_WINDOW = 3.0
+FIRST_LOOK = 0.5
 # The prefix of the circuit's operator inputs as live parameters (inputs.boom.command).
 INPUTS = 'inputs.'
 
@@ -63,7 +66,7 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                          history=HistoryPolicy.KEEP_ALL if self.cfg.lock_step
                          else HistoryPolicy.KEEP_LAST)
-        self._pub_clock = self.create_publisher(Clock, '/clock', qos)
+        self._pub_clock = self.create_publisher(Clock, CLOCK, qos)
         self._pub_p = {k: self.create_publisher(FluidPressure, k, qos) for k in PRESSURE_SIGNALS}
         self._pub_f = {k: self.create_publisher(Float64, k, qos) for k in FLOW_SIGNALS}
         self._pub_js = self.create_publisher(JointState, 'joint_states', qos)
@@ -89,6 +92,7 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         self._make_messages()
         self._started = time.monotonic()
         self._other_since: float | None = None
+        self._alone = threading.Event()
         self._alone_timer = self.create_timer(0.1, self._check_alone,
                                               clock=RosClock(clock_type=ClockType.STEADY_TIME))
         self._thread = threading.Thread(target=self._run, name='stepper', daemon=True)
@@ -215,7 +219,7 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         ``wait_subscribers`` matched readers and every reader the graph shows (a recorder's
         ~/ready sees only its side), and in lock-step the command's writer is matched (a
         command sent before is lost, and the run would wait ``lock_step_timeout``)."""
-        pubs = [self._pub_js, *self._pub_p.values(), *self._pub_f.values()]
+        pubs = [self._pub_clock, self._pub_js, *self._pub_p.values(), *self._pub_f.values()]
         want = self.runner.cfg.wait_subscribers
         end = time.monotonic() + limit
         while True:
@@ -223,8 +227,9 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
                 want, len(self.get_subscriptions_info_by_topic(p.topic_name)))) for p in pubs}
             if self.cfg.lock_step:
                 name = self._cmd.topic_name
+                # A lock-step run needs its controller: wait for one.
                 short[name] = (self._cmd.get_publisher_count(), max(
-                    min(want, 1), len(self.get_publishers_info_by_topic(name))))
+                    1, len(self.get_publishers_info_by_topic(name))))
             short = {k: v for k, v in short.items() if v[0] < v[1]}
             if not short:
                 return
@@ -243,6 +248,13 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
                 if cfg.real_time_factor == 0 else f'real-time factor {cfg.real_time_factor:g}')
         self.get_logger().info(f'ready: {cfg.publish_rate:g} Hz, {pace}'
                                + (', paused until ~/pause false' if cfg.start_paused else ''))
+        while not self._alone.wait(0.05):
+            if self._closing or not self.context.ok():
+                return
+        if cfg.lock_step and not cfg.start_paused:
+            # The first instant's clock and measurements must reach a controller already
+            # matched, or the run waits a whole lock_step_timeout for its first command.
+            self._matched()
         try:
             self.runner.run(self)
         except Exception as exc:  # a publisher gone at shutdown ends the thread quietly
@@ -251,19 +263,22 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
                 raise
 
     def _check_alone(self) -> None:
-        """Refuse to run beside another simulator: /clock would jump back and forth."""
+        """Refuse to run beside another simulator of the same namespace: its clock would jump
+        back and forth."""
         now = time.monotonic()
         if now > self._started + DISCOVERY_WINDOW and self._other_since is None:
             self.destroy_timer(self._alone_timer)
             return
         others = [f'{i.node_namespace.rstrip("/")}/{i.node_name}'
-                  for i in self.get_publishers_info_by_topic('/clock')]
+                  for i in self.get_publishers_info_by_topic(CLOCK)]
         # Leave out this node's own writer, once: a second simulator of the same name in the
         # same namespace is another one too.
         own = f'{self.get_namespace().rstrip("/")}/{self.get_name()}'
         if own in others:
             others.remove(own)
         if not others or self._closing:
+            if now >= self._started + FIRST_LOOK:
+                self._alone.set()
             return
         # A writer is discovered before its node's name is: wait a little for the name.
         self._other_since = self._other_since or now
@@ -271,9 +286,9 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
             return
         named = [o for o in others if '_UNKNOWN_' not in o]
         self.get_logger().error(
-            f'another node publishes /clock in this ROS domain'
-            f'{" (" + ", ".join(named) + ")" if named else ""}: one simulator per domain '
-            '(give each pump its own ROS_DOMAIN_ID)')
+            f'another node publishes {self.resolve_topic_name(CLOCK)} in this ROS domain'
+            f'{" (" + ", ".join(named) + ")" if named else ""}: one simulator per namespace '
+            '(give each pump its own namespace, or its own ROS_DOMAIN_ID)')
         self.exit_code = 2
         self.destroy_timer(self._alone_timer)
         self.runner.stop()
@@ -361,6 +376,7 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
                    'bad commands received' if bad else 'ok',
                    {'command_age_s': f'{d["command_age"]:.4f}',
                     'applied_current_A': f'{d["applied_current"]:.6f}',
+                    'commanded_current_A': f'{d["commanded_current"]:.6g}',
                     'watchdog_active': d['watchdog'], **stats}),
         ])
         arr.header.stamp = stamp(seconds_to_ns(d['sim_time']))

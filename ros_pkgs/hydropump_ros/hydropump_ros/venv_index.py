@@ -23,8 +23,40 @@ PACKAGES = {
     'hydropump_ros': 'ros_pkgs/hydropump_ros',
     'hydropump_bringup': 'ros_pkgs/hydropump_bringup',
 }
-EXECUTABLES = {'hydropump_ros': ('simulator', 'controller', 'recorder', 'hydropump-graph')}
+EXECUTABLES = {'hydropump_ros': ('simulator', 'controller', 'recorder', 'foxglove',
+                              'hydropump-graph')}
 SHARE_DIRS = {'hydropump_bringup': ('launch', 'config')}
+
+# The executables under lib/hydropump_ros. The venv's ROS wheels set their library path by
+# re-executing Python from a .pth file at site import, where a Ctrl-C is a fatal error with a
+# traceback. This launcher starts Python without site (-S), blocks SIGINT and SIGTERM, sets
+# that path itself, and executes the entry point with the signals still blocked: a signal
+# stays pending through both starts until the node's own handlers take it (entry.py).
+LAUNCHER = """#!{python} -S
+# Written by hydropump_ros.venv_index (make): the node {name}, as ros2 run starts it.
+try:
+    # _signal, not signal: that one imports enum, tens of milliseconds without a handler.
+    import _signal
+    _signal.pthread_sigmask(_signal.SIG_BLOCK, {{_signal.SIGINT, _signal.SIGTERM}})
+    import os, sys
+    env = dict(os.environ)
+    if not env.get('_ROS_WHEELS_BOOTSTRAP_COMPLETE'):
+        site = {site!r}
+        libs = [os.path.join(site, d) for d in sorted(os.listdir(site))
+                if d.startswith('ros_') and d.endswith('.libs')]
+        env['LD_LIBRARY_PATH'] = os.pathsep.join(
+            [{lib!r}, *libs,
+             *[p for p in env.get('LD_LIBRARY_PATH', '').split(os.pathsep) if p]])
+        env['_ROS_WHEELS_BOOTSTRAP_COMPLETE'] = '1'
+    code = ('import sys; sys.argv[0] = ' + repr(sys.argv[0]) +
+            '; from hydropump_ros.entry import {func}; sys.exit({func}())')
+    os.execve(sys.executable, [sys.executable, '-c', code, *sys.argv[1:]], env)
+except KeyboardInterrupt:   # before the signals were blocked
+    raise SystemExit(130) from None
+"""
+# Entry points of the node executables (the others are links to the console scripts).
+NODES = {'simulator': 'simulator', 'controller': 'controller', 'recorder': 'recorder',
+         'foxglove': 'foxglove'}
 
 PTH = """import os, sys; p = os.environ.get('AMENT_PREFIX_PATH', ''); \
 os.environ['AMENT_PREFIX_PATH'] = p if sys.prefix in p.split(os.pathsep) \
@@ -64,7 +96,15 @@ def install(root: Path, prefix: Path) -> list[Path]:
             link = lib / exe
             if link.is_symlink() or link.exists():
                 link.unlink()
-            link.symlink_to(os.path.relpath(prefix / 'bin' / exe, lib))
+            if exe in NODES:
+                link.write_text(LAUNCHER.format(
+                    python=prefix / 'bin' / 'python', name=exe, func=NODES[exe],
+                    lib=str(prefix / 'lib'),
+                    site=sysconfig.get_paths(vars={'base': str(prefix),
+                                                   'platbase': str(prefix)})['purelib']))
+                link.chmod(0o755)
+            else:
+                link.symlink_to(os.path.relpath(prefix / 'bin' / exe, lib))
             written.append(link)
     pth = Path(sysconfig.get_paths(vars={'base': str(prefix), 'platbase': str(prefix)})
                ['purelib']) / 'hydropump_ament_prefix.pth'
