@@ -3,6 +3,8 @@
 # Both bootstrap .venv on first use (Python 3.11, everything pinned in requirements.txt).
 
 PYTHON ?= python3
+# apt-get as root, else through sudo.
+SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.hydropump-installed
@@ -17,6 +19,11 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 all: demo
 
 $(STAMP): $(SETUP_FILES)
+	# Chromium for the report's browser test (Debian's package: Playwright's own browser
+	# download is not reachable everywhere); the test says so and skips where it is absent.
+	command -v chromium > /dev/null || { $(SUDO) apt-get install -y -q chromium \
+		|| { $(SUDO) apt-get update -q && $(SUDO) apt-get install -y -q chromium; } \
+		|| echo 'warning: chromium not installed: the report browser test will skip'; }
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip==25.3
 	$(BIN)/python -m pip install --quiet -r requirements.txt

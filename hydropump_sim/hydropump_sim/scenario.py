@@ -32,7 +32,7 @@ import numpy as np
 from .errors import HydropumpError
 from .inputs import held
 from .params import check_input, default_params_path, INPUTS, load_params, Params
-from .schema import ParamError, read_yaml, unknown_key_line
+from .schema import ParamError, read_yaml, text_number_hint, unknown_key_line
 
 SIGNALS = {
     'current': ('A', 'absolute solenoid current'),
@@ -87,7 +87,8 @@ class Scenario:
 
 def _number(v: Any, where: str, errors: list[str]) -> float | None:
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        errors.append(f'{where} = {v!r}: expected a finite number')
+        hint = text_number_hint(v) if isinstance(v, str) else ''
+        errors.append(f'{where} = {v!r}: expected a finite number{hint}')
         return None
     return float(v)
 
@@ -188,6 +189,20 @@ def check_signals(inputs: dict[str, Signal], duration: float) -> list[str]:
     return out
 
 
+# The inputs are held over increments of at most this [s] (simulate's dt_max, the node's
+# step): a sine at or above half its rate is sampled into something else.
+INPUT_PERIOD = 1.0e-3
+
+
+def _aliased(inputs: Mapping[str, Signal], period: float) -> list[str]:
+    """A line per sine the input sampling cannot carry (at or above its Nyquist rate)."""
+    nyquist = 0.5 / period
+    return [f'inputs.{name}.sine.frequency = {sig.sine[1]:g} Hz: at or above half the input '
+            f'sampling rate ({nyquist:g} Hz, inputs held every {period * 1e3:g} ms), it would '
+            'be sampled into another signal (at a multiple of that rate, into its zeros)'
+            for name, sig in inputs.items() if abs(sig.sine[1]) >= nyquist and sig.sine[0]]
+
+
 def load_scenario(path: str | Path, names: Collection[str] | None = None) -> Scenario:
     """Read and validate a scenario file (``names``: the inputs accepted, see
     :func:`parse_inputs`).
@@ -221,6 +236,8 @@ def load_scenario(path: str | Path, names: Collection[str] | None = None) -> Sce
     inputs = parse_inputs(doc.get('inputs'), errors, names)
     if duration is not None and duration > 0:
         errors += check_signals(inputs, duration)
+    if dt_out is not None and dt_out > 0:
+        errors += _aliased(inputs, min(dt_out, INPUT_PERIOD))
     params = None
     try:
         ppath = (path.parent / doc['params']) if 'params' in doc else default_params_path()

@@ -184,6 +184,16 @@ def with_unit(value: float, unit: str) -> str:
     return fmt(value) if unit in ('-', '') else f'{fmt(value)} {unit}'
 
 
+def text_number_hint(value: str) -> str:
+    """Why a number came as text, when it did: YAML 1.1 reads ``1.2e7`` (no dot, no
+    exponent sign) as a string."""
+    try:
+        float(value)
+    except (TypeError, ValueError):
+        return ''
+    return ' (YAML read it as text: write a dot and a signed exponent, e.g. 1.5e+9)'
+
+
 def range_text(s: ParamSpec) -> str:
     lo, hi = s.range
     lo_t = '-inf' if lo is None else fmt(lo)
@@ -231,13 +241,8 @@ def check_value(s: ParamSpec, value: Any) -> tuple[Any, str | None]:
             return list(value), None
         return None, f'{s.name} = {value!r}: expected a list of names ({s.desc})'
     if isinstance(value, str):
-        hint = ''
-        try:
-            float(value)
-            hint = ' (YAML read it as text: write a dot and a signed exponent, e.g. 1.5e+9)'
-        except ValueError:
-            pass
-        return None, f'{s.name} = {value!r}: not a number{hint}; expected {range_text(s)}'
+        return None, (f'{s.name} = {value!r}: not a number{text_number_hint(value)}; '
+                      f'expected {range_text(s)}')
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return None, f'{s.name} = {value!r}: not a number; expected {range_text(s)}'
     if s.type is int:

@@ -109,3 +109,39 @@ def test_fig1_duty_cycle_through_the_nodes(demo):
     pre, post = runs['fig1_emc_pre']['delivered'], runs['fig1_emc_post']['delivered']
     assert pre['motor'] >= 0.95 and pre['boom'] <= 0.8, pre
     assert post['boom'] <= 0.9 and abs(post['boom'] - post['motor']) <= 0.05, post
+
+
+def _chromium():
+    import shutil
+    return shutil.which('chromium') or shutil.which('chromium-browser')
+
+
+@pytest.mark.skipif(_chromium() is None, reason='no Chromium on this machine (make installs '
+                    "Debian's chromium package; Playwright's own browser download is not "
+                    'reachable from here)')
+def test_the_report_in_a_real_browser(demo):
+    """report.html opened in Chromium through Playwright, as a reader opens it: every figure
+    decodes (a broken data URI has no natural width), no console or page error, and the
+    tables are there with their rows."""
+    from playwright.sync_api import sync_playwright
+    out, _, _ = demo
+    errors = []
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=_chromium(), args=['--no-sandbox'])
+        try:
+            page = browser.new_page()
+            page.on('console', lambda m: errors.append(m.text) if m.type == 'error' else None)
+            page.on('pageerror', lambda e: errors.append(str(e)))
+            page.goto((out / 'report.html').resolve().as_uri(), wait_until='load')
+            images = page.eval_on_selector_all(
+                'img', 'els => els.map(e => [e.complete, e.naturalWidth, e.naturalHeight])')
+            rows = page.eval_on_selector_all('table', 'ts => ts.map(t => t.rows.length)')
+            headings = page.eval_on_selector_all('h2', 'hs => hs.map(h => h.textContent)')
+        finally:
+            browser.close()
+    assert not errors, errors
+    # The campaign's figures and the two Fig. 1 figures, each decoded to real pixels.
+    assert len(images) >= 7
+    assert all(ok and w > 300 and h > 200 for ok, w, h in images), images
+    assert len(rows) >= 4 and all(n >= 2 for n in rows), rows
+    assert any('Fig. 1' in h for h in headings), headings

@@ -94,3 +94,33 @@ def test_bench_profile():
         profile_from_dict({'sensors': {'line_flow': {'delay': -1.0}}})
     with pytest.raises(ParamError, match='unknown sensor parameter .did you mean'):
         profile_from_dict({'sensors': {'flow': {'delay': 0.1}}})
+
+
+def test_a_number_yaml_reads_as_text_gets_the_yaml_hint(tmp_path):
+    with pytest.raises(ScenarioError) as exc:
+        load_scenario(_write(tmp_path, """
+duration: 1.0
+inputs:
+  load_pressure: 1.2e7
+"""))
+    (line,) = exc.value.lines
+    assert "inputs.load_pressure = '1.2e7'" in line and 'signed exponent' in line
+
+
+def test_a_sine_the_input_sampling_cannot_carry_is_refused(tmp_path):
+    """A 1 MHz sine held every millisecond is sampled at its zeros (sin(2 pi 1e6 k 1e-3) =
+    0): refused with the sampling rate; one below half that rate is accepted."""
+    for freq, ok in ((1.0e6, False), (500.0, False), (100.0, True)):
+        path = _write(tmp_path, f"""
+duration: 1.0
+inputs:
+  load_pressure: {{offset: 1.0e+7, sine: {{amplitude: 1.0e+6, frequency: {freq!r}}}}}
+""")
+        if ok:
+            assert load_scenario(path).inputs['load_pressure'].sine[1] == freq
+            continue
+        with pytest.raises(ScenarioError) as exc:
+            load_scenario(path)
+        (line,) = exc.value.lines
+        assert line.startswith(f'inputs.load_pressure.sine.frequency = {freq:g} Hz') and \
+            '500 Hz' in line
