@@ -29,30 +29,17 @@ SHARE_DIRS = {'hydropump_bringup': ('launch', 'config')}
 
 # The executables under lib/hydropump_ros. The venv's ROS wheels set their library path by
 # re-executing Python from a .pth file at site import, where a Ctrl-C is a fatal error with a
-# traceback. This launcher starts Python without site (-S), blocks SIGINT and SIGTERM, sets
-# that path itself, and executes the entry point with the signals still blocked: a signal
-# stays pending through both starts until the node's own handlers take it (entry.py).
-LAUNCHER = """#!{python} -S
+# traceback, or is lost. This launcher sets that path itself and starts Python with SIGINT and
+# SIGTERM blocked (coreutils env --block-signal: blocked before the interpreter runs a line),
+# so a signal stays pending through its start until the node's own handlers take it
+# (entry.py unblocks them). A signal to the shell before that ends it quietly.
+LAUNCHER = """#!/bin/sh
 # Written by hydropump_ros.venv_index (make): the node {name}, as ros2 run starts it.
-try:
-    # _signal, not signal: that one imports enum, tens of milliseconds without a handler.
-    import _signal
-    _signal.pthread_sigmask(_signal.SIG_BLOCK, {{_signal.SIGINT, _signal.SIGTERM}})
-    import os, sys
-    env = dict(os.environ)
-    if not env.get('_ROS_WHEELS_BOOTSTRAP_COMPLETE'):
-        site = {site!r}
-        libs = [os.path.join(site, d) for d in sorted(os.listdir(site))
-                if d.startswith('ros_') and d.endswith('.libs')]
-        env['LD_LIBRARY_PATH'] = os.pathsep.join(
-            [{lib!r}, *libs,
-             *[p for p in env.get('LD_LIBRARY_PATH', '').split(os.pathsep) if p]])
-        env['_ROS_WHEELS_BOOTSTRAP_COMPLETE'] = '1'
-    code = ('import sys; sys.argv[0] = ' + repr(sys.argv[0]) +
-            '; from hydropump_ros.entry import {func}; sys.exit({func}())')
-    os.execve(sys.executable, [sys.executable, '-c', code, *sys.argv[1:]], env)
-except KeyboardInterrupt:   # before the signals were blocked
-    raise SystemExit(130) from None
+LD_LIBRARY_PATH="{libs}${{LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}}"
+export LD_LIBRARY_PATH _ROS_WHEELS_BOOTSTRAP_COMPLETE=1
+exec env --block-signal=INT --block-signal=TERM {python} -c \\
+    'import sys; sys.argv = sys.argv[1:]; from hydropump_ros.entry import {func}; sys.exit({func}())' \\
+    "$0" "$@"
 """
 # Entry points of the node executables (the others are links to the console scripts).
 NODES = {'simulator': 'simulator', 'controller': 'controller', 'recorder': 'recorder',
@@ -97,11 +84,13 @@ def install(root: Path, prefix: Path) -> list[Path]:
             if link.is_symlink() or link.exists():
                 link.unlink()
             if exe in NODES:
+                site = Path(sysconfig.get_paths(vars={'base': str(prefix),
+                                                      'platbase': str(prefix)})['purelib'])
+                libs = [prefix / 'lib', *sorted(d for d in site.glob('ros_*.libs')
+                                                if d.is_dir())]
                 link.write_text(LAUNCHER.format(
                     python=prefix / 'bin' / 'python', name=exe, func=NODES[exe],
-                    lib=str(prefix / 'lib'),
-                    site=sysconfig.get_paths(vars={'base': str(prefix),
-                                                   'platbase': str(prefix)})['purelib']))
+                    libs=os.pathsep.join(str(d) for d in libs)))
                 link.chmod(0o755)
             else:
                 link.symlink_to(os.path.relpath(prefix / 'bin' / exe, lib))
