@@ -38,7 +38,7 @@ LAUNCHER = """#!/bin/sh
 LD_LIBRARY_PATH="{libs}${{LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}}"
 export LD_LIBRARY_PATH _ROS_WHEELS_BOOTSTRAP_COMPLETE=1
 exec env --block-signal=INT --block-signal=TERM {python} -c \\
-    'import sys; sys.argv = sys.argv[1:]; from hydropump_ros.entry import {func}; sys.exit({func}())' \\
+    'import sys; sys.argv = sys.argv[1:]; import hydropump_ros.entry as e; sys.exit(e.{func}())' \\
     "$0" "$@"
 """
 # Entry points of the node executables (the others are links to the console scripts).
