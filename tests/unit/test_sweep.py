@@ -225,3 +225,33 @@ def test_a_worker_killed_mid_sweep_loses_no_run(client, tmp_path):
     cols = read_table(tmp_path / 'runs.parquet')
     assert list(cols['run_id']) == list(range(40)) and set(cols['status']) == {'ok'}
     assert len(list((tmp_path / 'runs').glob('*.json'))) == 40
+
+
+def test_a_full_disk_ends_with_one_line_and_keeps_the_runs_stored(tmp_path, capsys,
+                                                                 monkeypatch):
+    """The disk fills after the first run is stored: one line, exit 2, and the stored run is
+    whole, so the same command resumes from it."""
+    import errno
+
+    import yaml
+
+    from hydropump_ctrl.sweep import engine
+    store = engine._store
+    calls = []
+
+    def store_once(out, row):
+        calls.append(row['run_id'])
+        if len(calls) > 1:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        store(out, row)
+    monkeypatch.setattr(engine, '_store', store_once)
+    path = tmp_path / 'spec.yaml'
+    path.write_text(yaml.safe_dump({
+        'params': str(CONFIG / 'pump.yaml'), 'experiment': EXPERIMENT, 'outputs': ['fopdt'],
+        'grid': {'relative': True, 'parameters': {'actuator.mu_a': [0.95, 1.0, 1.05]}}}))
+    code, err = _cli(capsys, path, '--out', tmp_path / 'out', '--workers', 1, '--no-report')
+    errors = [ln for ln in err if ln.startswith('error: ')]
+    assert code == 2 and len(errors) == 1 and 'No space left on device' in errors[0], err
+    assert 'Traceback' not in '\n'.join(err)
+    stored = list((tmp_path / 'out' / 'runs').glob('*.json'))
+    assert len(stored) == 1 and stored[0].read_text().startswith('{')

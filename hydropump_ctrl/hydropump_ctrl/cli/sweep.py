@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ._common import add_progress_option, int_in, run_dir
+from ._common import add_progress_option, int_in, run_dir, UsageError
 
 
 def register(subparsers) -> None:
@@ -44,8 +44,15 @@ def cmd_sweep(args) -> int:
 
     sweep = load_sweep(args.spec)           # every spec problem before any work
     out = prepare_out(args.out or run_dir(None, 'sweep'), sweep)
-    res = run_sweep(sweep, out, address=args.scheduler, workers=args.workers,
-                    batch=args.batch, progress=args.progress, report=not args.no_report)
+    try:
+        res = run_sweep(sweep, out, address=args.scheduler, workers=args.workers,
+                        batch=args.batch, progress=args.progress,
+                        report=not args.no_report)
+    except OSError as exc:
+        # A full disk, say: every run stored before is whole (each is renamed into place),
+        # and the same command resumes from them.
+        raise UsageError(f'{out}: cannot write ({exc.strerror or exc}); the runs finished '
+                         'before are kept there, and the same command resumes') from None
     print(f'sweep: {sweep.n_runs} runs, {res.executed} executed now, {res.reused} from '
           f'earlier, {res.failed} failed', file=sys.stderr)
     print(res.table)
