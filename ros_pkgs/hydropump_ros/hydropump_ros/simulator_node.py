@@ -41,8 +41,9 @@ from .conversions import absolute, CLOCK, seconds_to_ns, set_stamp, stamp
 # How long a new simulator keeps looking for another publisher of its clock topic [s]:
 # discovery on a loaded machine can take seconds. Two simulators started within this of each
 # other both refuse; a later one refuses alone. It takes its first step only after
-# FIRST_LOOK without one: a simulator that refuses has published nothing (on localhost an
-# existing writer is discovered well within it).
+# FIRST_LOOK without one, counted from its first look and from the last change it saw in the
+# graph (on a loaded machine the other participants' endpoints come in over a while): a
+# simulator that refuses has published nothing.
 DISCOVERY_WINDOW = 3.0
 FIRST_LOOK = 0.5
 # The prefix of the circuit's operator inputs as live parameters (inputs.boom.command).
@@ -92,6 +93,8 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         self._make_messages()
         self._started = time.monotonic()
         self._other_since: float | None = None
+        self._graph: int | None = None
+        self._graph_since = 0.0
         self._alone = threading.Event()
         self._alone_timer = self.create_timer(0.1, self._check_alone,
                                               clock=RosClock(clock_type=ClockType.STEADY_TIME))
@@ -268,6 +271,7 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         now = time.monotonic()
         if now > self._started + DISCOVERY_WINDOW and self._other_since is None:
             self.destroy_timer(self._alone_timer)
+            self._alone.set()
             return
         others = [f'{i.node_namespace.rstrip("/")}/{i.node_name}'
                   for i in self.get_publishers_info_by_topic(CLOCK)]
@@ -277,7 +281,10 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         if own in others:
             others.remove(own)
         if not others or self._closing:
-            if now >= self._started + FIRST_LOOK:
+            graph = len(self.get_node_names_and_namespaces())
+            if graph != self._graph:
+                self._graph, self._graph_since = graph, now
+            if now >= self._graph_since + FIRST_LOOK:
                 self._alone.set()
             return
         # A writer is discovered before its node's name is: wait a little for the name.
@@ -288,7 +295,9 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         self.get_logger().error(
             f'another node publishes {self.resolve_topic_name(CLOCK)} in this ROS domain'
             f'{" (" + ", ".join(named) + ")" if named else ""}: one simulator per namespace '
-            '(give each pump its own namespace, or its own ROS_DOMAIN_ID)')
+            '(give each pump its own namespace, or its own ROS_DOMAIN_ID)'
+            + ('; it had already taken steps: the other one was discovered late'
+               if self._alone.is_set() else ''))
         self.exit_code = 2
         self.destroy_timer(self._alone_timer)
         self.runner.stop()
