@@ -216,16 +216,77 @@ def overrides(items: Iterable[str] | None) -> dict:
 
 
 def run_dir(base: str | None, prefix: str) -> Path:
-    """Output folder: the one given, or ``out/<prefix>-<timestamp>``; created if missing."""
+    """Output folder: the one given, or ``out/<prefix>-<timestamp>``; created if missing.
+    A folder inside a bag (or a bag itself) is refused."""
     path = Path(base) if base else Path('out') / f'{prefix}-{datetime.now():%Y%m%d-%H%M%S}'
+    _refuse_in_bag(path, 'output folder', path)
     _make_folder(path, 'output folder')
     return path
 
 
+# The kinds of YAML file the suite reads or writes, by their top-level keys, so that an output
+# replaces only a file of its own kind (a controller file never lands on a plant file).
+BAG_METADATA = 'rosbag2_bagfile_information'
+PLANT_GROUPS = frozenset({'fluid', 'pump', 'spool', 'actuator', 'plate', 'line'})
+RESULTS_CSV_HEAD = 't [s],'
+
+
+def file_kind(path: Path) -> str | None:
+    """What an existing file holds, in words (``'plant params'``, ``'bag metadata'``,
+    ``'results CSV'``, ...); ``None`` for an empty file (nothing to lose)."""
+    suffix = path.suffix.lower()
+    if suffix not in ('.csv', '.yaml', '.yml'):
+        return suffix.lstrip('.') + ' file'
+    try:
+        text = path.read_text(encoding='utf-8', errors='replace')
+    except OSError as exc:
+        raise UsageError(f'cannot read the existing file {path}: {exc.strerror or exc}') \
+            from None
+    if not text.strip():
+        return None
+    if suffix == '.csv':
+        return 'results CSV' if text.startswith(RESULTS_CSV_HEAD) else 'CSV of other data'
+    import yaml
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError:
+        return 'text that is not YAML'
+    if not isinstance(data, dict):
+        return 'YAML of another kind'
+    if BAG_METADATA in data:
+        return 'bag metadata'
+    groups = set()
+    for body in data.values():
+        if isinstance(body, dict) and isinstance(body.get('ros__parameters'), dict):
+            groups |= set(body['ros__parameters'])
+    if 'controller' in groups:
+        return 'controller params'
+    if groups & PLANT_GROUPS:
+        return 'plant params'
+    if 'components' in data:
+        return 'circuit'
+    if 'distributions' in data:
+        return 'sweep'
+    return 'ROS params of another kind' if groups else 'YAML of another kind'
+
+
+def _refuse_in_bag(path: Path, what: str, shown: Path) -> None:
+    for folder in [path.expanduser().resolve(), *path.expanduser().resolve().parents]:
+        if (folder / 'metadata.yaml').is_file() and any(folder.glob('*.mcap')):
+            raise UsageError(f'{what} {shown}: it lies in the bag {folder}; choose a path '
+                             'outside it')
+
+
 def output_file(path: str | Path, suffixes: Iterable[str], what: str, *,
-                create: bool = True) -> Path:
+                create: bool = True, kind: str | None = None) -> Path:
     """An output file of one of the ``suffixes`` (``'.csv'``), its folder created unless
-    ``create`` is false (a dry run)."""
+    ``create`` is false (a dry run).
+
+    Refused with one line: a folder, a path inside a bag, and an existing file that holds
+    something else than ``kind`` (a :func:`file_kind`; with no ``kind``, any file of the
+    right suffix is the output's kind). The file itself is written through a temporary file
+    renamed into place (:mod:`hydropump_sim.files`).
+    """
     path = Path(path)
     suffixes = tuple(suffixes)
     if path.suffix not in suffixes:
@@ -233,6 +294,12 @@ def output_file(path: str | Path, suffixes: Iterable[str], what: str, *,
         raise UsageError(f'{what} {path}: use a {names} file name')
     if path.is_dir():
         raise UsageError(f'{what} {path}: is a folder, expected a file name')
+    _refuse_in_bag(path.parent, what, path)
+    if kind and path.is_file():
+        found = file_kind(path)
+        if found not in (None, kind):
+            raise UsageError(f'{what} {path}: it exists and holds {found}, not {kind}; '
+                             'choose another name (nothing was replaced)')
     if create:
         _make_folder(path.parent, f'folder of the {what}')
     return path
