@@ -10,6 +10,7 @@ import control
 import numpy as np
 
 from . import linear as lin
+from .files import save_figure
 from .metrics import fast_fraction, step_figures
 from .params import Params
 from .scaling import current_for_displacement, flow_percent
@@ -221,7 +222,7 @@ def plot_steps(steps: dict, params: Params, path) -> None:
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -254,5 +255,5 @@ def plot_bode(params: Params, path, omega: np.ndarray | None = None, T: float = 
         ax.grid(True, which='both', alpha=0.3)
     am.set_title('Current to line flow: fine vs simplified vs eqs. 14/15')
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)

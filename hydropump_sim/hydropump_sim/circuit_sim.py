@@ -21,6 +21,7 @@ from scipy import optimize
 from . import integrator as ig
 from .circuit import Circuit, CircuitError, N_FLUID, NODE_PREFIX
 from .errors import HydropumpError, InputError
+from .files import replacing
 from .inputs import sample, Signal
 from .simulate import IntegrationError, IntegratorConfig, run_model, time_grid
 
@@ -83,9 +84,10 @@ class CircuitResult:
 
     def to_npz(self, path: str | Path) -> None:
         c = self.circuit
-        np.savez_compressed(path, t=self.t, y=self.y, x=self.x, u=self.u,
-                            signals=np.array(c.signals), units=np.array(c.signal_units),
-                            states=np.array(c.states), inputs=np.array(c.inputs))
+        with replacing(path, 'result') as tmp:
+            np.savez_compressed(tmp, t=self.t, y=self.y, x=self.x, u=self.u,
+                                signals=np.array(c.signals), units=np.array(c.signal_units),
+                                states=np.array(c.states), inputs=np.array(c.inputs))
 
     def to_csv(self, path: str | Path, names: list[str] | None = None) -> None:
         """Time and the named signals (default every component signal) with units."""
@@ -94,8 +96,9 @@ class CircuitResult:
         cols = [self[n] for n in names]
         units = [c.signal_units[c.signal_index(n)] for n in names]
         head = 't [s],' + ','.join(f'{n} [{u}]' for n, u in zip(names, units))
-        np.savetxt(path, np.column_stack([self.t] + cols), delimiter=',', header=head,
-                   comments='', fmt='%.10g')
+        with replacing(path, 'result') as tmp:
+            np.savetxt(tmp, np.column_stack([self.t] + cols), delimiter=',', header=head,
+                       comments='', fmt='%.10g')
 
 
 def input_table(circuit: Circuit, t: np.ndarray, inputs: Mapping[str, Signal] | None,

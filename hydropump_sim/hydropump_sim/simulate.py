@@ -19,6 +19,7 @@ import numpy as np
 from . import _core as c
 from . import integrator as ig
 from .errors import HydropumpError, InputError
+from .files import replacing
 from .inputs import sample, Signal
 from .model import INPUTS, OUTPUT_UNITS, OUTPUTS, pack, state_names
 from .params import check_input, Params
@@ -82,9 +83,10 @@ class SimResult:
 
     def to_npz(self, path: str | Path) -> None:
         """Save arrays, names and units to ``.npz``."""
-        np.savez_compressed(path, t=self.t, y=self.y, x=self.x, u=self.u,
-                            outputs=np.array(OUTPUTS), units=np.array(OUTPUT_UNITS),
-                            states=np.array(self.states), model=np.array(self.model))
+        with replacing(path, 'result') as tmp:
+            np.savez_compressed(tmp, t=self.t, y=self.y, x=self.x, u=self.u,
+                                outputs=np.array(OUTPUTS), units=np.array(OUTPUT_UNITS),
+                                states=np.array(self.states), model=np.array(self.model))
 
     @classmethod
     def from_npz(cls, path: str | Path) -> SimResult:
@@ -95,8 +97,9 @@ class SimResult:
     def to_csv(self, path: str | Path) -> None:
         """Save time and outputs as CSV with a unit row in the header."""
         head = 't [s],' + ','.join(f'{n} [{u}]' for n, u in zip(OUTPUTS, OUTPUT_UNITS))
-        np.savetxt(path, np.column_stack([self.t, self.y]), delimiter=',', header=head,
-                   comments='', fmt='%.10g')
+        with replacing(path, 'result') as tmp:
+            np.savetxt(tmp, np.column_stack([self.t, self.y]), delimiter=',', header=head,
+                       comments='', fmt='%.10g')
 
 
 def input_table(params: Params, t: np.ndarray, current: Signal, load_pressure: Signal = None,

@@ -81,7 +81,7 @@ def cmd_circuit(args) -> int:
     from hydropump_sim.scenario import parse_inputs, ScenarioError
 
     from ..experiments.circuit_loop import run_circuit
-    csv = output_file(args.csv, ('.csv',), 'CSV') if args.csv else None
+    csv = output_file(args.csv, ('.csv',), 'CSV', kind='results CSV') if args.csv else None
     sets = overrides(args.set)
     inputs_raw, duration = None, args.duration
     if args.scenario:

@@ -17,6 +17,7 @@ import time
 
 import numpy as np
 
+from hydropump_sim.files import save_figure, write_text
 from hydropump_sim.params import load_params
 
 from ._common import (
@@ -219,7 +220,7 @@ def cmd_design(args) -> int:
     default = (CONTROLLER_YAML if not args.circuit
                else f'controller_{Path(args.circuit).stem}.yaml')
     out = output_file(args.out or plant.with_name(default), PARAMS_SUFFIXES,
-                      'params file', create=not args.dry_run)
+                      'params file', create=not args.dry_run, kind='controller params')
     if not args.dry_run:  # nothing is written then
         protect_output(out, [plant, *([args.profile] if args.profile else []),
                              *([args.circuit] if args.circuit else []),
@@ -266,7 +267,7 @@ def cmd_design(args) -> int:
         '# model.* is the embedded model; emc.* are closed-loop eigenvalues (time constants), '
         'the',
         '# EMC gains follow from them; pi.* is the baseline with control_toolbox names.'])
-    out.write_text(cfg.to_ros_yaml(header))
+    write_text(out, cfg.to_ros_yaml(header), 'params file')
     print(f'\nwrote {out} ({time.perf_counter() - t0:.1f} s)')
     return 0
 
@@ -329,8 +330,10 @@ def _plot_pair(path: Path, title: str, runs: dict, signal: str, scale: float, un
         axu.set_xlabel('time [s]')
         axu.grid(True, alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    try:
+        save_figure(fig, path, dpi=100)
+    finally:
+        plt.close(fig)
 
 
 def cmd_closed_loop(args) -> int:
@@ -385,7 +388,7 @@ def cmd_closed_loop(args) -> int:
     rows = cs.evaluate(make, params, profile, cfg)
     table = cs.format_table(rows)
     print(table)
-    (out / 'targets.txt').write_text(f'controller: {source}\n\n{table}\n')
+    write_text(out / 'targets.txt', f'controller: {source}\n\n{table}\n', 'targets table')
     n_miss = sum(r.ok is False for r in rows)
     print(f'\n{sum(r.ok is True for r in rows)} targets met, {n_miss} missed; wrote '
           f'{out}/targets.txt ({time.perf_counter() - t0:.1f} s)')

@@ -18,6 +18,8 @@ import argparse
 import sys
 import time
 
+from hydropump_sim.files import write_text
+
 from ._common import add_params_option, add_progress_option, plant_file, positive, run_dir
 
 
@@ -148,7 +150,7 @@ def cmd_matrix(args) -> int:
                            for k, e in fits.items()}}
     if args.out:
         out = run_dir(args.out, 'matrix')
-        (out / 'matrix.json').write_text(json.dumps(result, indent=2))
+        write_text(out / 'matrix.json', json.dumps(result, indent=2), 'result')
     if args.json:
         print(json.dumps(result, indent=2))
         return 0

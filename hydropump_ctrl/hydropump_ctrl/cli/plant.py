@@ -10,9 +10,12 @@ from __future__ import annotations
 from pathlib import Path
 import time
 
+from hydropump_sim.files import save_figure, write_text
+
 from ._common import add_params_option, float_in, output_file, plant_file, run_dir
 
 RESULT_SUFFIXES = ('.csv', '.npz')
+RESULT_KINDS = {'.csv': 'results CSV'}
 PLOT_SUFFIXES = ('.png', '.pdf', '.svg', '.jpg', '.jpeg')
 
 
@@ -43,7 +46,7 @@ def cmd_analyze(args) -> int:
     print(f'parameters: {plant}', flush=True)
     report, steps = analysis.format_report(params, T=T)
     print(report)
-    (out / 'analysis.txt').write_text(report + '\n')
+    write_text(out / 'analysis.txt', report + '\n', 'analysis')
     analysis.plot_steps(steps, params, out / 'steps.png')
     analysis.plot_bode(params, out / 'bode.png', T=T)
     print(f'\nwrote {out}/analysis.txt, steps.png, bode.png '
@@ -58,7 +61,8 @@ def cmd_simulate(args) -> int:
     # The output names are checked before the run, which may be long; the default folder is
     # made after it, so that a failed run leaves none behind.
     target = args.out or sc.output
-    path = output_file(target, RESULT_SUFFIXES, 'output') if target else None
+    path = output_file(target, RESULT_SUFFIXES, 'output',
+                       kind=RESULT_KINDS.get(Path(target).suffix)) if target else None
     plot = output_file(args.plot, PLOT_SUFFIXES, 'plot') if args.plot else None
     t0 = time.perf_counter()
     res = simulate(sc.params, sc.duration, model=sc.model, dt_out=sc.dt_out, **sc.inputs)
@@ -101,5 +105,7 @@ def plot_result(res, params, path: Path) -> None:
     for a in ax:
         a.grid(True, alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    try:
+        save_figure(fig, path, dpi=100)
+    finally:
+        plt.close(fig)

@@ -20,6 +20,8 @@ from typing import Any
 
 import numpy as np
 
+from hydropump_sim.files import save_figure, write_text
+
 from .diagnostics import FLAG_TEXT, FopdtFit
 from .model import PAPER, PARAMS
 from .pooling import Identification
@@ -278,10 +280,10 @@ def _pyplot():
 
 
 def _save(plt, fig, path, dpi: int) -> Path:
-    path = Path(path)
-    fig.savefig(path, dpi=dpi)
-    plt.close(fig)
-    return path
+    try:
+        return save_figure(fig, path, dpi=dpi)
+    finally:
+        plt.close(fig)
 
 
 def _figure(rows: int, height: float):
@@ -427,7 +429,7 @@ def write_report(ident: Identification, out_dir, *, params=None, plots: bool = T
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = {'json': out / 'result.json', 'markdown': out / 'report.md'}
-    paths['json'].write_text(to_json(ident) + '\n')
+    write_text(paths['json'], to_json(ident) + '\n', 'result')
     figures: dict[str, list[str]] = {}
     if plots:
         params = load_default_params() if params is None else params
@@ -450,5 +452,5 @@ def write_report(ident: Identification, out_dir, *, params=None, plots: bool = T
             figures[fit.name] = [str(f5), str(f6)]
             paths[f'fig5_{stem}'] = f5
             paths[f'fig6_{stem}'] = f6
-    paths['markdown'].write_text(markdown(ident, figures) + '\n')
+    write_text(paths['markdown'], markdown(ident, figures) + '\n', 'report')
     return paths

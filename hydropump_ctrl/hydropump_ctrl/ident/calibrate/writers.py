@@ -12,11 +12,11 @@ from __future__ import annotations
 from collections.abc import Sequence
 import json
 import math
-import os
 from pathlib import Path
 
 import numpy as np
 
+from hydropump_sim import files
 from hydropump_sim.params import Params
 from hydropump_sim.schema import dump_ros_yaml, spec_map
 
@@ -35,16 +35,10 @@ SI_UNITS = {'line_flow': 'm^3/s', 'pump_flow': 'm^3/s', 'load_flow': 'm^3/s',
 
 def write_text(path, text: str, what: str) -> Path:
     """``text`` into ``path`` through a temporary file renamed into place."""
-    path = Path(path)
-    tmp = path.with_name(f'.{path.name}.tmp-{os.getpid()}')
     try:
-        tmp.write_text(text, encoding='utf-8')
-        os.replace(tmp, path)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise CalibrationError(f'{path}: cannot write the {what} ({exc.strerror or exc})') \
-            from None
-    return path
+        return files.write_text(path, text, what)
+    except files.WriteError as exc:
+        raise CalibrationError(exc.lines) from None
 
 
 def estimate_text(p) -> str:
@@ -123,9 +117,10 @@ def plot_comparison(exp, after: dict, path: Path, before: dict | None = None,
     axes[-1][1].set_xlabel('t [s]')
     fig.suptitle(title or exp.name, fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    try:
+        return files.save_figure(fig, path, dpi=90)
+    finally:
+        plt.close(fig)
 
 
 def plot_correlation(names: Sequence[str], corr: np.ndarray, path: Path) -> Path:
@@ -143,9 +138,10 @@ def plot_correlation(names: Sequence[str], corr: np.ndarray, path: Path) -> Path
     fig.colorbar(im, ax=ax, shrink=0.8, label='correlation')
     ax.set_title('parameter correlations')
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    try:
+        return files.save_figure(fig, path, dpi=90)
+    finally:
+        plt.close(fig)
 
 
 # ---- tables ------------------------------------------------------------------------------
