@@ -4,7 +4,9 @@ The plan (:mod:`hydropump_ctrl.experiments.plans`), the output folder and the op
 checked here, before any node starts; running the plan needs ROS, which this package never
 imports: the runner comes from the ``hydropump.runners`` entry-point group, which the ROS
 package ``hydropump_ros`` fills (``record = hydropump_ros.record:run``). Without it, or
-without rclpy, the command says so in one line (``--check`` needs neither).
+without rclpy, the command says so in one line (``--check`` needs neither). SIGTERM stops the
+run (the runner raises :class:`~hydropump_ctrl.experiments.experiment.Stopped` once the nodes
+are stopped and the open bag is closed): one line, exit code 143.
 """
 
 from __future__ import annotations
@@ -15,6 +17,8 @@ from pathlib import Path
 import sys
 
 import yaml
+
+from hydropump_sim.files import write_text
 
 from ._common import add_params_option, float_in, plant_file, positive_float, UsageError
 
@@ -123,6 +127,7 @@ def _table(rows) -> str:
 
 
 def run(args) -> int:
+    from ..experiments.experiment import Stopped
     from ..experiments.plans import load_plan
     _check_options(args)
     params = _plant(args)
@@ -143,15 +148,23 @@ def run(args) -> int:
 
     def echo(line: str) -> None:
         print(line, flush=True)
-    done = record(plan, params, args, echo)
-    bags = [{'name': e.name, 'bag': str(done[e.name]['bag']),
-             'start_time_s': round(done[e.name]['t0_s'], 9), 'duration_s': e.duration,
-             'held_out': e.held_out} for e in plan.experiments]
-    (out / MANIFEST).write_text(yaml.safe_dump(
-        {'plan': plan.source, 'held_out': plan.held_out, 'bags': bags}, sort_keys=False))
-    print(f'\n{len(bags)} bag{"s" if len(bags) != 1 else ""} in {out.resolve()}:')
-    print(_table([[b['name'], f'{b["duration_s"]:g} s', 'held out' if b['held_out'] else '']
-                  for b in bags]))
-    print(f'held out: {held}')
-    print(f'list: {out.resolve() / MANIFEST}')
+    try:
+        done = record(plan, params, args, echo)
+        bags = [{'name': e.name, 'bag': str(done[e.name]['bag']),
+                 'start_time_s': round(done[e.name]['t0_s'], 9), 'duration_s': e.duration,
+                 'held_out': e.held_out} for e in plan.experiments]
+        write_text(out / MANIFEST, yaml.safe_dump(
+            {'plan': plan.source, 'held_out': plan.held_out, 'bags': bags}, sort_keys=False),
+            'list of bags')
+        print(f'\n{len(bags)} bag{"s" if len(bags) != 1 else ""} in {out.resolve()}:')
+        print(_table([[b['name'], f'{b["duration_s"]:g} s', 'held out' if b['held_out']
+                       else ''] for b in bags]))
+        print(f'held out: {held}')
+        print(f'list: {out.resolve() / MANIFEST}')
+    except Stopped:
+        nodes = ('the open bag closed, the nodes left running' if args.attach else
+                 'every node of the run ended, the open bag closed')
+        print(f'stopped by SIGTERM: {nodes}; the bags recorded so far are in {out.resolve()}',
+              file=sys.stderr)
+        return Stopped.EXIT_CODE
     return 0

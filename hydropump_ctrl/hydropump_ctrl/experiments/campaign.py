@@ -10,18 +10,25 @@ before and after that is here, pure:
 - :func:`loop_figures` - rise, overshoot, settling, peak and IAE of a closed-loop run from
   its :class:`~hydropump_ctrl.ident.Recording`;
 - :func:`analyse_campaign` - stages 2, 4 and 5: the fit, the model analysis and the report
-  (figures in :mod:`.plots`, tables and the HTML page in :mod:`.report`).
+  (figures in :mod:`.plots`, tables and the HTML page in :mod:`.report`);
+- :func:`stage` - a failure (a full disk, a node that exits) named by the stage it ended:
+  :class:`StageError`, one line.
+
+Every file written here is written whole or not at all (:mod:`hydropump_sim.files`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 import json
 from pathlib import Path
 import time
 
 import numpy as np
 
+from hydropump_sim.errors import HydropumpError
+from hydropump_sim.files import write_text
 from hydropump_sim.metrics import moving_average, step_figures
 from hydropump_sim.model import pump_flow
 from hydropump_sim.params import Params
@@ -39,6 +46,36 @@ STAGES = ('identification', 'fitting', 'closed loop', 'model analysis', 'report'
 #: The stage names of a graph that ran beside the campaign's (the Fig. 1 duty cycle).
 BESIDE = 'Fig. 1 (beside): '
 
+
+# ---- a stage that fails ---------------------------------------------------------------------
+
+class StageError(HydropumpError):
+    """A stage of the demo failed (a full disk, a node that exited): one line naming the
+    stage and why. What earlier stages wrote (the bags) is left as it is."""
+
+
+def one_line(exc: HydropumpError) -> str:
+    """A user-facing error in one line: its problems joined, with its source."""
+    if exc.head is not None:
+        return ' '.join(str(exc).split())
+    text = '; '.join(exc.lines)
+    return f'{exc.source}: {text}' if exc.source else text
+
+
+@contextmanager
+def stage(name: str) -> Iterator[None]:
+    """Run a stage of the demo: a user-facing error (:class:`HydropumpError`: a file that
+    could not be written, a node that failed) or an ``OSError`` (a folder that could not be
+    made) inside becomes a :class:`StageError` naming ``name``, in one line."""
+    try:
+        yield
+    except StageError:
+        raise  # named by the stage it came from (a worker's graph)
+    except HydropumpError as exc:
+        raise StageError(f'the {name} stage failed: {one_line(exc)}') from None
+    except OSError as exc:
+        where = f'{exc.filename}: ' if exc.filename else ''
+        raise StageError(f'the {name} stage failed: {where}{exc.strerror or exc}') from None
 
 
 # ---- experiments ----------------------------------------------------------------------------
@@ -314,6 +351,12 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
     -------
     Path
         The report page.
+
+    Raises
+    ------
+    StageError
+        A stage that failed (a full disk: a file it could not write), named in one line;
+        the files of the stages before it are left whole, none is left half-written.
     """
     from hydropump_sim import analysis
 
@@ -322,69 +365,80 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
     from .maps import draw_figures
     t0 = time.perf_counter()
     figs = run_dir / 'figures'
-    figs.mkdir(parents=True, exist_ok=True)
+    with stage('figures'):
+        figs.mkdir(parents=True, exist_ok=True)
 
     def later(fn, *args):
+        # Without a pool, the work runs when its result is asked for, in that stage.
         if pool is None:
-            value = fn(*args)
-            return lambda: value
+            return lambda: fn(*args)
         return pool.submit(fn, *args).result
     maps = later(draw_figures, params, figs)
     echo('[3/5 fitting] eq. 19 on the identification bags ...')
-    ident = fit_bags([exp.bag(bag_dir) for exp in idents], params=params, progress=None)
-    truth = later(plant_truth, params, profile, ident.recordings)
-    fit_paths = write_report(ident, run_dir / 'identification', params=params)
-    truth = truth()
-    paper_fit = fit_recordings(ident.recordings, params=params, method='paper', joint=False)
+    with stage('fitting'):
+        ident = fit_bags([exp.bag(bag_dir) for exp in idents], params=params, progress=None)
+        truth = later(plant_truth, params, profile, ident.recordings)
+        fit_paths = write_report(ident, run_dir / 'identification', params=params)
+        truth = truth()
+        paper_fit = fit_recordings(ident.recordings, params=params, method='paper',
+                                   joint=False)
     walls['fitting'] = stage_times(time.perf_counter() - t0)
     calibration = None
     if calibrate:
         t0 = time.perf_counter()
         echo(f'[3/5 fitting] calibration of {", ".join(CALIBRATED)} from the same bags ...')
-        calibration = bench_calibration(params, profile, ident.recordings,
-                                        run_dir / 'calibration')
+        with stage('calibration'):
+            calibration = bench_calibration(params, profile, ident.recordings,
+                                            run_dir / 'calibration')
         echo(report.text_table(report.CALIBRATION_HEAD, calibration[0]))
         walls['calibration'] = stage_times(time.perf_counter() - t0)
     echo(format_table(ident))
     rows = report.identification_rows(ident, truth, paper_fit)
     echo(report.text_table(['', 'G0 [%/range]', 'tau [ms]', 't_d [ms]'], rows))
     starts = starts or {}
-    loop_results = {exp.name: loop_figures(params, exp, read_recording(exp.bag(bag_dir)),
-                                           t0=starts.get(exp.name, 0.0)) for exp in loops}
+    with stage('closed-loop analysis'):
+        loop_results = {exp.name: loop_figures(params, exp, read_recording(exp.bag(bag_dir)),
+                                               t0=starts.get(exp.name, 0.0)) for exp in loops}
     echo(report.text_table(*report.loop_table(loop_results)))
-    duty = None
+    duty, kinds = None, []
     if fig1:
         from . import fig1 as cycle
-        runs, duty_results = cycle.analyse({e.name: e.bag(bag_dir) for e in fig1}, starts,
-                                           profile, params.fluid.p_atm, params.relief.p_crack)
+        with stage('Fig. 1 analysis'):
+            runs, duty_results = cycle.analyse({e.name: e.bag(bag_dir) for e in fig1}, starts,
+                                               profile, params.fluid.p_atm,
+                                               params.relief.p_crack)
         echo(report.text_table(cycle.TABLE_HEAD, cycle.table_rows(duty_results)))
         kinds = sorted({e.name.rsplit('_', 1)[1] for e in fig1}, reverse=True)
-        for kind in kinds:
-            cycle.plot(runs, kind, figs / f'fig1_{kind}.png')
         duty = (duty_results, [figs / f'fig1_{kind}.png' for kind in kinds])
     t0 = time.perf_counter()
     echo('[4/5 model analysis] modes and the singular-perturbation check ...')
-    text, steps = analysis.format_report(params)
+    with stage('model analysis'):
+        text, steps = analysis.format_report(params)
     modal = text[text.index('== Fine-model modes'):text.index('== Paper linear models')]
     echo(modal)
     walls['model analysis'] = stage_times(time.perf_counter() - t0)
     t0 = time.perf_counter()
     echo('[5/5 report] figures and report.html ...')
-    analysis.plot_steps(steps, params, figs / 'steps.png')
-    plots.plot_bode_identified(params, ident, figs / 'bode.png')
-    hyst = plots.plot_hysteresis(params, figs / 'hysteresis.png')
-    plots.plot_closed_loop(loop_results, figs / 'emc_vs_pi.png')
-    maps()
+    with stage('figures'):
+        analysis.plot_steps(steps, params, figs / 'steps.png')
+        plots.plot_bode_identified(params, ident, figs / 'bode.png')
+        hyst = plots.plot_hysteresis(params, figs / 'hysteresis.png')
+        plots.plot_closed_loop(loop_results, figs / 'emc_vs_pi.png')
+        for kind in kinds:
+            cycle.plot(runs, kind, figs / f'fig1_{kind}.png')
+        maps()
     walls['report'] = stage_times(time.perf_counter() - t0)
     # A graph beside the campaign's adds its simulated time, not its idle time.
     walls['total'] = stage_times(time.perf_counter() - started,
                                  sum(v['simulated_s'] for v in walls.values()),
                                  sum(v['overhead_s'] for k, v in walls.items()
                                      if not k.startswith(BESIDE)))
-    sections = report.report_sections(ident, truth, rows, loop_results, modal, text, hyst,
-                                      walls, fit_paths, figs, bag_dir, calibration, duty)
-    page = report.write_html(run_dir, sections)
-    (run_dir / 'summary.json').write_text(json.dumps(report.summary(
-        ident, truth, loop_results, walls, duty[0] if duty else None), indent=2) + '\n')
+    with stage('report'):
+        sections = report.report_sections(ident, truth, rows, loop_results, modal, text, hyst,
+                                          walls, fit_paths, figs, bag_dir, calibration, duty)
+        page = report.write_html(run_dir, sections)
+        write_text(run_dir / 'summary.json', json.dumps(report.summary(
+            ident, truth, loop_results, walls, duty[0] if duty else None), indent=2) + '\n',
+            'summary')
     echo(report.text_table(report.STAGE_HEAD, report.stage_rows(walls)))
     return page

@@ -1,10 +1,26 @@
 """One run through the node graph (:class:`Experiment`), as every orchestrated run describes
-it: the demo's campaign, its Fig. 1 duty cycle and ``hydropump record``'s plans."""
+it: the demo's campaign, its Fig. 1 duty cycle and ``hydropump record``'s plans; and the stop
+of such a run by SIGTERM (:class:`Stopped`)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+import signal
+
+
+class Stopped(BaseException):
+    """SIGTERM: a run through the node graph stops.
+
+    The ROS side raises it in the main thread from its signal handler, as Ctrl-C raises
+    ``KeyboardInterrupt``, so that each ``finally`` on the way ends what it started (a graph's
+    nodes by PID, each closing its bag); the command (``hydropump-demo``, ``hydropump
+    record``) then says so in one line and exits with :attr:`EXIT_CODE`. Defined here, where
+    both the ROS runners and the pure ``hydropump`` command line see it.
+    """
+
+    #: 128 + SIGTERM, as a shell reports a process that SIGTERM ended.
+    EXIT_CODE = 128 + signal.SIGTERM
 
 
 @dataclass

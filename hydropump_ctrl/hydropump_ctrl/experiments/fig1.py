@@ -273,7 +273,7 @@ def analyse(bags: Mapping[str, Path], starts: Mapping[str, float], profile: Sens
 def plot(runs: Mapping[str, DutyRun], kind: str, path: Path, margin: float = MARGIN) -> None:
     """The cycle under each control for one compensator kind: pressures, margin, load flows
     (EMC's, against each section's demand), throttling power lost."""
-    from .plots import pyplot
+    from .plots import pyplot, save
     plt = pyplot()
     fig, axes = plt.subplots(4, 1, figsize=(10, 11), sharex=True)
     styles = {'emc': 'C0', 'pi': 'C1', 'hydromechanical': 'C2'}
@@ -318,5 +318,4 @@ def plot(runs: Mapping[str, DutyRun], kind: str, path: Path, margin: float = MAR
     axes[0].set_title(f'Fig. 1 duty cycle, {kind}-compensated sections: '
                       + '; '.join(f'{a:g} s {name}' for name, a, _ in PHASES[1:]), fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    save(plt, fig, path)

@@ -1,7 +1,8 @@
 """The figures of the demo report: Bode of the fit, the current-flow hysteresis, EMC against PI.
 
-Each function draws one PNG with matplotlib (the Agg backend: no display needed) and closes
-it; the closed-loop plot draws what :func:`.campaign.loop_figures` returns.
+Each function draws one PNG with matplotlib (the Agg backend: no display needed), written
+whole or not at all (:func:`save`), and closes it; the closed-loop plot draws what
+:func:`.campaign.loop_figures` returns.
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hydropump_sim.files import save_figure
 from hydropump_sim.params import Params
 
 
@@ -19,6 +21,15 @@ def pyplot():
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
     return plt
+
+
+def save(plt, fig, path, dpi: int = 100) -> Path:
+    """``fig`` into ``path`` whole or not at all (a full disk: a
+    :class:`~hydropump_sim.files.WriteError` naming the file), then closed either way."""
+    try:
+        return save_figure(fig, path, dpi=dpi)
+    finally:
+        plt.close(fig)
 
 
 def plot_bode_identified(params: Params, ident, path: Path) -> None:
@@ -53,8 +64,7 @@ def plot_bode_identified(params: Params, ident, path: Path) -> None:
         ax.grid(True, which='both', alpha=0.3)
     am.set_title('Fine vs simplified vs identified (growing flow)')
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    save(plt, fig, path)
 
 
 def plot_hysteresis(params: Params, path: Path, levels: int = 13, hold: float = 1.5) -> dict:
@@ -96,8 +106,7 @@ def plot_hysteresis(params: Params, path: Path, levels: int = 13, hold: float = 
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    save(plt, fig, path)
     return out
 
 
@@ -122,5 +131,4 @@ def plot_closed_loop(results: dict, path: Path) -> None:
         ax.legend(fontsize=8)
     fig.suptitle('EMC against the PI baseline, real nodes, bench sensors (lock-step)')
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    save(plt, fig, path)

@@ -13,6 +13,8 @@ import html
 import math
 from pathlib import Path
 
+from hydropump_sim.files import write_text
+
 from ..ident import PAPER
 
 # ---- tables ---------------------------------------------------------------------------------
@@ -214,7 +216,8 @@ def _table(head, rows) -> str:
 
 
 def write_html(run_dir: Path, sections: list[tuple[str, str]]) -> Path:
-    """Write ``report.html`` in ``run_dir`` from ``(title, HTML body)`` sections."""
+    """Write ``report.html`` in ``run_dir`` from ``(title, HTML body)`` sections (whole or not
+    at all)."""
     css = ('body{font-family:sans-serif;max-width:1200px;margin:auto;padding:1em}'
            'table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;'
            'padding:3px 8px;text-align:right}th{background:#eee}img{max-width:100%}'
@@ -224,6 +227,4 @@ def write_html(run_dir: Path, sections: list[tuple[str, str]]) -> Path:
     for title, body in sections:
         parts.append(f'<h2>{html.escape(title)}</h2>{body}')
     parts.append('</body></html>')
-    path = run_dir / 'report.html'
-    path.write_text('\n'.join(parts))
-    return path
+    return write_text(run_dir / 'report.html', '\n'.join(parts), 'report')

@@ -21,7 +21,11 @@ the analysis of their bags and the report are pure (:mod:`hydropump_ctrl.experim
 The options are checked before anything starts (every number in its range, ``--out`` a folder
 this user can write; ``--jobs`` capped at the CPUs, with a note): one ``error:`` line and exit
 code 2. SIGTERM stops the run: each graph, in this process or in a worker process, ends its
-nodes by PID, and the demo exits with code 143 and one line saying so (Ctrl-C: 130).
+nodes by PID, and the demo exits with code 143 and one line saying so (Ctrl-C: 130), as
+``hydropump record`` does (:func:`.orchestration.stop_on_sigterm`). A stage that fails (a
+full disk, a node that exits) ends the run with one line naming the stage and where the bags
+recorded before it are, left as they were, and exit code 1; every file the demo writes is
+written whole or not at all (:mod:`hydropump_sim.files`).
 """
 
 from __future__ import annotations
@@ -40,7 +44,7 @@ from typing import TYPE_CHECKING
 from hydropump_ctrl.cli._common import float_in, int_in, Parser, UsageError
 from hydropump_sim.errors import HydropumpError
 
-from .orchestration import starting, stop
+from .orchestration import starting, stop_on_sigterm
 
 if TYPE_CHECKING:
     from hydropump_ctrl.experiments.campaign import Experiment
@@ -50,32 +54,17 @@ if TYPE_CHECKING:
 # The experiments, the orchestration and the analysis are imported where they run: the
 # command line is checked first, at once (their imports take seconds).
 
-#: Exit code of a run stopped by SIGTERM (128 + 15, as a shell reports a process it ended).
-STOPPED = 128 + signal.SIGTERM
 #: How long a stopping run waits for a worker to end its graph [s]: beyond Graph.close's
 #: worst case (each of three nodes 20 s after its SIGINT, then killed).
 STOP_WAIT = 65.0
-
-
-class Stopped(BaseException):
-    """SIGTERM: the run stops. Raised in the main thread, as Ctrl-C raises KeyboardInterrupt,
-    so that each ``finally`` on the way ends what it started (each graph's nodes by PID)."""
-
-
-def _on_sigterm(signum, frame):
-    # Once: a second SIGTERM must not cut the stop short.
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    stop(Stopped())  # held while a process starts, so that none is left behind
 
 
 def _worker_init() -> None:
     """In each worker process: SIGTERM (from the run as it stops) unwinds what the worker
     runs, ending its graph's nodes, and ends the worker with exit code 143; Ctrl-C is left to
     the run, which stops the workers then."""
-    def on_sigterm(signum, frame):
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)
-        stop(SystemExit(STOPPED))
-    signal.signal(signal.SIGTERM, on_sigterm)
+    from hydropump_ctrl.experiments.experiment import Stopped
+    stop_on_sigterm(lambda: SystemExit(Stopped.EXIT_CODE))
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
@@ -195,12 +184,14 @@ def main(argv=None) -> int:
     except UsageError as exc:
         print(f'error: {exc}', file=sys.stderr)
         return 2
-    signal.signal(signal.SIGTERM, _on_sigterm)
+    from hydropump_ctrl.experiments.experiment import Stopped
+    stop_on_sigterm()
     try:
         return run(args, run_dir)
     except HydropumpError as exc:
-        for line in exc.lines:
-            print(f'error: {line}', file=sys.stderr)
+        from hydropump_ctrl.experiments.campaign import one_line
+        # One line: what failed (a stage names itself), and what the run keeps.
+        print(f'error: {one_line(exc)}; {kept(run_dir)}', file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print('interrupted', file=sys.stderr)
@@ -208,7 +199,18 @@ def main(argv=None) -> int:
     except Stopped:
         print(f'stopped by SIGTERM: every node of the run ended; the partial run is in '
               f'{run_dir}', file=sys.stderr)
-        return STOPPED
+        return Stopped.EXIT_CODE
+
+
+def kept(run_dir: Path) -> str:
+    """What a failed run leaves: the bags closed before it failed (each with its
+    ``metadata.yaml``, which the recorder writes on closing a bag), never touched after."""
+    bag_dir = run_dir / 'bags'
+    n = sum(1 for _ in bag_dir.glob('*/metadata.yaml'))
+    if not n:
+        return f'no bag was recorded (run folder {run_dir})'
+    return (f'the {n} bag{"s" * (n != 1)} recorded before it {"are" if n != 1 else "is"} '
+            f'kept in {bag_dir}')
 
 
 # ---- the run --------------------------------------------------------------------------------
@@ -236,11 +238,12 @@ def run_graph(stages: dict[str, list[Experiment]], run_dir: Path, log_dir: Path,
     (``topics`` recorded: the closed loop's by default), stop it, its nodes ended by PID
     whatever ends the run (SIGTERM included). Returns the stage times and each experiment's
     start time."""
-    from hydropump_ctrl.experiments.campaign import LOOP_TOPICS, stage_times
+    from hydropump_ctrl.experiments.campaign import LOOP_TOPICS, stage, stage_times
 
     from .orchestration import Graph, Orchestrator, own_domain
     topics = LOOP_TOPICS if topics is None else topics
     walls, starts = {}, {}
+    where = f' ({tag.strip(" []")})' if tag else ''  # which graph, in a failure's line
     with own_domain() as did:
         # rclpy's own signal handlers would shut the context down under a running
         # experiment (an RCLError): a signal unwinds this run instead (Stopped).
@@ -249,15 +252,18 @@ def run_graph(stages: dict[str, list[Experiment]], run_dir: Path, log_dir: Path,
             t0 = time.perf_counter()
             _progress(f'{tag}[0/5 graph] simulator, controller and recorder (ROS domain {did})'
                       ' ...')
-            graph = Graph.start(orch, log_dir, topics, sensor_profile=profile_path, **start)
+            with stage(f'graph start-up{where}'):
+                graph = Graph.start(orch, log_dir, topics, sensor_profile=profile_path,
+                                    **start)
             try:
                 _progress(f'{tag}      ready in ' + ', '.join(
                     f'{k} {v:.1f} s' for k, v in graph.ready_s.items()))
                 wall = time.perf_counter() - t0
                 walls['graph start-up'] = stage_times(wall, 0.0, wall)
                 for i, (what, exps) in enumerate(stages.items(), 1):
-                    walls[what] = _run_stage(graph, what, i, exps, run_dir / 'bags', starts,
-                                             tag)
+                    with stage(f'recording ({what})'):
+                        walls[what] = _run_stage(graph, what, i, exps, run_dir / 'bags',
+                                                 starts, tag)
             finally:
                 graph.close()
         finally:

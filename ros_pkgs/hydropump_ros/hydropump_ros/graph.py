@@ -2,9 +2,11 @@
 
 It does what ``hydropump_bringup/launch/closed_loop.launch.py`` does, with the same arguments
 (``--namespace pump1 --lock-step --bag /tmp/run1 ...``): simulator, controller and recorder in
-one namespace, each the installed executable as ``ros2 run`` starts it. Ctrl-C (or SIGTERM)
-stops them all, each with SIGINT as ``ros2 launch`` does; if one node exits, the others are
-stopped and its log is named.
+one namespace, each the installed executable as ``ros2 run`` starts it. ``--foxglove [PORT]``
+adds the ``foxglove`` node beside them (the launch file's ``foxglove:=true
+foxglove_port:=PORT``): the suite's topics live over the Foxglove WebSocket protocol. Ctrl-C
+(or SIGTERM) stops them all, each with SIGINT as ``ros2 launch`` does; if one node exits, the
+others are stopped and its log is named.
 """
 
 from __future__ import annotations
@@ -17,10 +19,14 @@ import subprocess
 import sys
 import time
 
-from hydropump_ctrl.cli._common import float_in, Parser, UsageError
+from hydropump_ctrl.cli._common import float_in, int_in, Parser, UsageError
+from hydropump_ctrl.foxglove import FoxgloveConfig
 from hydropump_sim.params import default_params_path
+from hydropump_sim.schema import spec_map
 
 NODES = ('simulator', 'controller', 'recorder')
+#: The foxglove node's address parameters (their defaults and range: one source of truth).
+FOXGLOVE = spec_map(FoxgloveConfig)
 
 
 def executable(node: str) -> str:
@@ -63,6 +69,9 @@ def graph_commands(args) -> dict[str, list[str]]:
     if topics:
         rec += _p('topics', '[' + topics + ']')
     cmds = {'simulator': sim, 'controller': ctrl, 'recorder': rec}
+    if args.foxglove is not None:
+        # Its default topics, and discovery, take what a circuit adds as it appears.
+        cmds['foxglove'] = _p('port', args.foxglove)
     return {k: [executable(k), '--ros-args', *common, *v] for k, v in cmds.items()
             if k not in (args.without or [])}
 
@@ -91,6 +100,13 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument('--compression', default='zstd', choices=('zstd', 'none'))
     ap.add_argument('--without', action='append', choices=NODES, help='leave a node out')
     ap.add_argument('--log-dir', default=None, help="write each node's log to <dir>/<node>.log")
+    # Port 0 (any free port) is the node's own setting; here the address is printed, so it
+    # is one the user can type.
+    ap.add_argument('--foxglove', nargs='?', type=int_in(1, FOXGLOVE['port'].range[1]),
+                    const=FOXGLOVE['port'].default, default=None, metavar='PORT',
+                    help='also start the foxglove node: the topics live on '
+                    f'ws://{FOXGLOVE["host"].default}:PORT for Foxglove (default port '
+                    "%(const)s; the launch file's foxglove:=true foxglove_port:=PORT)")
     return ap
 
 
@@ -121,6 +137,9 @@ def main(argv=None) -> int:
         procs[name] = subprocess.Popen(cmd, env=env, stdout=out, stderr=subprocess.STDOUT
                                        if out else None)
         print(f'started {name} (pid {procs[name].pid})', flush=True)
+    if 'foxglove' in procs:
+        print(f'live view: ws://{FOXGLOVE["host"].default}:{args.foxglove} (Foxglove; layout '
+              'config/foxglove/hydropump.json)', flush=True)
     stopping = []
     signal.signal(signal.SIGINT, lambda *_: stopping.append(True))
     signal.signal(signal.SIGTERM, lambda *_: stopping.append(True))

@@ -68,6 +68,21 @@ def starting():
             raise _held.pop()
 
 
+def stop_on_sigterm(exc: Callable[[], BaseException] | None = None) -> None:
+    """From now on SIGTERM stops the run in this process: its handler raises ``exc()``
+    (default :class:`~hydropump_ctrl.experiments.experiment.Stopped`) in the main thread,
+    through :func:`stop` (held while a node process starts), once: a second SIGTERM must not
+    cut the stop short. The run's :class:`Orchestrator` is then made with ``signals=False``."""
+    if exc is None:
+        from hydropump_ctrl.experiments.experiment import Stopped  # now, not in the handler
+        exc = Stopped
+
+    def on_sigterm(signum, frame):
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        stop(exc())
+    signal.signal(signal.SIGTERM, on_sigterm)
+
+
 def executable(name: str) -> str:
     """``<prefix>/lib/hydropump_ros/<name>``, as ``ros2 run`` finds it."""
     from ament_index_python.packages import get_package_prefix
@@ -243,6 +258,7 @@ class Graph:
         self.running_s = 0.0  # wall time the simulator spent stepping
         self.notes: list[str] = []  # what attaching changed, for the user
         self._restore: dict[str, dict] = {}
+        self._open_bag: Path | None = None  # the bag the recorder has open for a run
 
     # ---- a graph of its own -------------------------------------------------------------
 
@@ -485,8 +501,12 @@ class Graph:
         end = self._grid(t0 + exp.duration)
         self._run_to(end + 1.0 / self.publish_rate, exp)
         orch.set_params('recorder', {'stop_time': end})
-        if not orch.call(Trigger, 'recorder/stop', Trigger.Request(), timeout=120).success:
-            raise GraphError(f'the recorder did not close {bag}' + self._log_hint('recorder'))
+        closed = orch.call(Trigger, 'recorder/stop', Trigger.Request(), timeout=120)
+        if not closed.success:
+            # Its answer says why (a full disk: the bag closed with what was written).
+            raise GraphError(f'the recorder did not close {bag}: {closed.message}'
+                             + self._log_hint('recorder'))
+        self._open_bag = None
         return t0
 
     def _grid(self, t: float) -> float:
@@ -506,6 +526,7 @@ class Graph:
         start = self.orch.call(Trigger, 'recorder/start', Trigger.Request())
         if not start.success:
             raise GraphError(f'the recorder could not open {bag}: {start.message}')
+        self._open_bag = bag
 
     def _run_to(self, t: float, exp: Experiment) -> None:
         """Let the simulator run to simulation time ``t`` [s] and pause there."""
@@ -521,9 +542,16 @@ class Graph:
         self.running_s += time.perf_counter() - t_run
 
     def close(self) -> None:
-        """Nodes started here: SIGINT, as ``ros2 launch`` stops a node; SIGKILL after 20 s.
-        Nodes attached to: their waits as they were, and the recorder's output."""
+        """Nodes started here: SIGINT, as ``ros2 launch`` stops a node (the recorder closes
+        the bag it has open); SIGKILL after 20 s. Nodes attached to: the bag of a run cut
+        short (Ctrl-C, SIGTERM, a failure) closed with what it has, their waits as they were,
+        and the recorder's output."""
+        from std_srvs.srv import Trigger
         procs = [p for p, _, _ in self.orch.procs.values()]
+        if self._open_bag is not None and not procs:
+            with contextlib.suppress(GraphError):
+                self.orch.call(Trigger, 'recorder/stop', Trigger.Request(), timeout=30)
+        self._open_bag = None
         for proc in procs:
             if proc.poll() is None:
                 proc.send_signal(signal.SIGINT)

@@ -6,6 +6,11 @@ entry point of this package. Here is only what needs the graph, on the one orche
 :mod:`.orchestration`: a graph of its own in a ROS domain of its own (simulator in lock-step
 with the plan's params file and sensor profile, started paused), or the graph already running
 in this domain and namespace (``--attach``).
+
+SIGTERM stops the run as it stops ``hydropump-demo`` (:func:`.orchestration.stop_on_sigterm`):
+:class:`~hydropump_ctrl.experiments.experiment.Stopped` unwinds it, a graph of its own ends
+its nodes by PID (the recorder closes the open bag), an attached graph has its open bag
+closed; the command says so in one line and exits with code 143.
 """
 
 from __future__ import annotations
@@ -24,7 +29,7 @@ from hydropump_ctrl.experiments.plans import (
     standard_plan,
 )
 
-from .orchestration import Graph, Orchestrator, own_domain, run_experiments
+from .orchestration import Graph, Orchestrator, own_domain, run_experiments, stop_on_sigterm
 
 
 def run(plan: Plan, params, args, echo: Callable[[str], None] = print) -> dict[str, dict]:
@@ -49,10 +54,13 @@ def run(plan: Plan, params, args, echo: Callable[[str], None] = print) -> dict[s
         Per experiment (:func:`.orchestration.run_experiments`).
     """
     out = Path(args.out).resolve()
+    # rclpy's own signal handlers would shut the context down under a waiting call (an
+    # RCLError): SIGTERM unwinds the run instead.
+    stop_on_sigterm()
     if args.attach:
         return _attached(plan, args, out, echo)
     with own_domain() as did:
-        orch = Orchestrator(args.namespace)
+        orch = Orchestrator(args.namespace, signals=False)
         try:
             t0 = time.perf_counter()
             echo(f'[graph] simulator, controller and recorder (ROS domain {did}'
@@ -72,7 +80,7 @@ def run(plan: Plan, params, args, echo: Callable[[str], None] = print) -> dict[s
 
 def _attached(plan: Plan, args, out: Path, echo) -> dict[str, dict]:
     import os
-    orch = Orchestrator(args.namespace)
+    orch = Orchestrator(args.namespace, signals=False)
     try:
         echo(f'[graph] looking for simulator, controller and recorder (ROS domain '
              f'{os.environ.get("ROS_DOMAIN_ID", "0")}, namespace {orch.namespace or "/"}) ...')
