@@ -16,7 +16,9 @@ advance and what it holds while it does:
 - **the sensor models** of the profile and the scheduled inputs of a scenario.
 
 The stepping thread calls :meth:`Runner.run` with a *sink* (an object with ``current(t,
-value)`` and ``measurement(frame)``); every other method may be called from any thread: the
+value)`` and ``measurement(frame)``, and optionally ``event(name, t, text)``, told of every
+lock-step timeout and watchdog trip, named by its :attr:`Runner.stats` key, at the
+simulation time it happened); every other method may be called from any thread: the
 changes they ask for are applied by the stepping thread between two increments, so the
 integrator never sees an input change inside one.
 
@@ -171,6 +173,8 @@ class Sink(Protocol):
 
     def measurement(self, frame: Frame) -> None: ...
 
+    # Optional: def event(self, name: str, t: float, text: str) -> None (see the module).
+
 
 Log = Callable[[str, str], None]
 
@@ -223,6 +227,7 @@ class Runner:
         self.stats = {'nan_commands': 0, 'clamped_commands': 0, 'lock_step_timeouts': 0,
                       'watchdog_trips': 0}
         self._periods: deque = deque(maxlen=2000)
+        self._events: list[tuple[str, float, str]] = []   # for the sink, out of the lock
         self._started = False       # the first step's signals are out
         self._reset_out = False     # a reset's signals are due
         self._reset()
@@ -370,14 +375,19 @@ class Runner:
         next_wall = self._clock()
         last_wall = None
         every = self.cfg.publish_every
+        tell = getattr(sink, 'event', None)
         while True:
             with self._cv:
                 go = self._gate()
                 resumed, reset = self._resumed, self._reset_out
                 if go and not reset:
                     self._inputs()
+                events, self._events = self._events, []
             if not go:
                 return
+            if tell is not None:
+                for event in events:
+                    tell(*event)
             if resumed:
                 next_wall, last_wall = self._clock(), None
             if reset:  # publish the reset state, then gate again (pause, lock-step)
@@ -432,6 +442,11 @@ class Runner:
                     self.stats['lock_step_timeouts'] += 1
                     self._warn('lockstep', 'lock-step: no command within lock_step_timeout; '
                                            'advancing with the held current')
+                    self._events.append((
+                        'lock_step_timeouts', self.sim.t,
+                        f'no command within lock_step_timeout = '
+                        f'{self.cfg.lock_step_timeout:g} s: advancing with the held current '
+                        f'{self._current:.4g} A'))
                     break
                 self._cv.wait(left)
             self._cmd_used = self._cmd_seq
@@ -456,8 +471,10 @@ class Runner:
             if not self._watchdog:
                 self._watchdog = True
                 self.stats['watchdog_trips'] += 1
-                self._log('warn', f'no current command for {self.cfg.command_timeout:g} s: '
-                                  f'applying the safe current {self.safe_current:.4g} A')
+                text = (f'no current command for {self.cfg.command_timeout:g} s: applying the '
+                        f'safe current {self.safe_current:.4g} A')
+                self._log('warn', text)
+                self._events.append(('watchdog_trips', self.sim.t, text))
             current = self.safe_current
         lo, hi = self.params.I_limits
         # As the Simulator clamps it: diagnostics report what is applied, not what was asked.

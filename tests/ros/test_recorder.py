@@ -122,6 +122,13 @@ def test_bag_is_rosbag2_exact_complete_and_reads_with_an_independent_decoder(
     assert info['relative_file_paths'] == ['run_0.mcap']
     assert info['custom_data']['time_base'] == 'simulation'
     assert info['custom_data']['messages_lost'] == '0', info['custom_data']
+    # Closed at stop_time once drained; no event: a fit takes it.
+    assert info['custom_data']['closed_by'] == 'stop_time'
+    assert info['custom_data']['drain'] == 'complete'
+    assert info['custom_data']['events.safe_current'] == '0'
+    assert info['custom_data']['events.lock_step_timeout'] == '0'
+    from hydropump_ctrl.ident.plausibility import recorder_report
+    assert recorder_report(bag) is None
     # One clock: the bag lasts as long as the run did in simulation time.
     assert info['starting_time']['nanoseconds_since_epoch'] == 0
     assert info['duration']['nanoseconds'] == 500_000_000
@@ -251,6 +258,9 @@ def test_sigint_closes_the_bag_within_a_second(nodes, test_node, tmp_path):
     assert time.monotonic() - t0 < 1.5  # the process exits; the bag closed within a second
     assert 'Traceback' not in rec.log()
     assert (bag / 'metadata.yaml').is_file()
+    cd = yaml.safe_load((bag / 'metadata.yaml').read_text())[
+        'rosbag2_bagfile_information']['custom_data']
+    assert cd['closed_by'] == 'SIGINT' and cd['drain'] == 'complete', cd
     msgs = read_mcap(bag)
     assert len(msgs['/line_flow']) >= 100
     last = max(t for t, _ in msgs['/line_flow'])

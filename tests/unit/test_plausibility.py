@@ -205,3 +205,54 @@ def test_a_calibration_worse_than_the_mean_writes_no_params_file(tmp_path, capsy
     assert not (tmp_path / 'cal' / 'calibrated.yaml').exists()
     report = (tmp_path / 'cal' / 'report.md').read_text()
     assert 'is below zero' in report
+
+
+# ---- what the recorder told in the bag -------------------------------------------------------
+
+CLEAN = {'time_base': 'simulation', 'messages_lost': '0', 'messages_late': '0',
+         'closed_by': 'stop', 'drain': 'complete', 'events.safe_current': '0',
+         'events.lock_step_timeout': '0'}
+
+
+def test_a_bag_whose_recorder_saw_no_event_and_lost_nothing_fits(rec, tmp_path, capsys):
+    bag = write_bag(tmp_path / 'clean', _streams(rec), custom_data=CLEAN)
+    code, lines = _fit(capsys, bag, tmp_path)
+    assert code == 0, lines
+
+
+@pytest.mark.parametrize('told, words', [
+    ({'events.safe_current': '2', 'events.safe_current.first': '3.250000'},
+     ('2 safe-current engagements (the first at 3.25 s)',)),
+    ({'events.lock_step_timeout': '1', 'events.lock_step_timeout.first': '1.005000'},
+     ('1 lock-step timeout (the first at 1.005 s)',)),
+    ({'messages_lost': '7', 'lost./line_flow': '5', 'lost./line_pressure': '2'},
+     ('7 messages lost (/line_flow 5, /line_pressure 2)',)),
+    ({'messages_lost': '3', 'lost./line_flow': '3',
+      'drain': 'cut after 2 s: what was still on its way is counted as lost'},
+     ('3 messages lost', 'its stop was cut after 2 s')),
+    ({'events.safe_current': '1', 'events.safe_current.first': '2.000000',
+      'events.lock_step_timeout': '4', 'events.lock_step_timeout.first': '0.500000',
+      'messages_lost': '1', 'lost./line_flow': '1'},
+     ('1 safe-current engagement (the first at 2 s); 4 lock-step timeouts (the first at 0.5 '
+      's); 1 messages lost',)),
+])
+def test_a_bag_whose_recorder_reports_events_or_losses_is_refused(rec, tmp_path, capsys, told,
+                                                                 words):
+    """Safe-current engagements, lock-step timeouts and losses leave data that fit as well
+    as any: every fit refuses them, one line naming what, how many and when the first was."""
+    bag = write_bag(tmp_path / 'told', _streams(rec), custom_data={**CLEAN, **told})
+    _one_error(*_fit(capsys, bag, tmp_path), str(bag), 'its recorder reports', *words)
+    assert not (tmp_path / 'fit' / 'result.json').exists()
+    _one_error(*_calibrate(capsys, bag, tmp_path), 'its recorder reports', *words)
+    assert not (tmp_path / 'cal' / 'calibrated.yaml').exists()
+
+
+def test_the_report_is_read_from_the_mcap_file_alone(rec, tmp_path, capsys):
+    """Given the storage file only (no metadata.yaml beside it), the recorder's report comes
+    from the file's last rosbag2 metadata record, as ros2 bag reindex would rebuild it."""
+    bag = write_bag(tmp_path / 'alone', _streams(rec),
+                    custom_data={**CLEAN, 'events.safe_current': '1',
+                                 'events.safe_current.first': '4.000000'})
+    (bag / 'metadata.yaml').unlink()
+    (mcap,) = bag.glob('*.mcap')
+    _one_error(*_fit(capsys, mcap, tmp_path), str(mcap), '1 safe-current engagement')

@@ -13,6 +13,12 @@ with the ranges the params file gives the pump, one line per problem:
   like L/min`` when a 6e4th of it fits);
 - **too few samples** for a fit (:data:`MIN_SAMPLES`).
 
+- what the **recorder** wrote into the bag's ``custom_data`` (:func:`recorder_report`):
+  safe-current engagements and lock-step timeouts (``events.<kind>``: the plant did not get
+  the commands the record shows), and messages lost on the way or left unwritten by a stop
+  cut at its bound (``messages_lost``, ``drain``). A fit of such a bag would look as good as
+  any other, so it is refused, with one line saying what, how many and when the first was.
+
 The wrong message type on a contract topic and a bag holding two runs (time going back) are
 found while the bag is read (:mod:`.recording`, with :func:`wrong_type` and
 :func:`two_runs`). :func:`check_recordings` raises every problem of every recording at once
@@ -25,7 +31,8 @@ refuse a bag. Nothing here imports ROS.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
 
 import numpy as np
 
@@ -117,23 +124,28 @@ def _flow(name: str, v: np.ndarray, params) -> str | None:
 CHECKS = {'current': _current, 'pressure': _pressure, 'flow': _flow}
 
 
-def problems(rec, params, signals: Iterable[str] | None = None) -> list[str]:
+def problems(rec, params, signals: Iterable[str] | None = None, recorder: bool = True
+             ) -> list[str]:
     """One line per implausible signal of ``rec`` (a :class:`~.recording.Recording`), each
     naming the recording.
 
     ``signals`` are the signals to check (default: every one :data:`KINDS` knows); the
     signals acting as current and flow are always checked, as a current and a flow, whatever
-    their names.
+    their names. With ``recorder``, what the recorder reported in the bag ``rec`` was read
+    from comes first (:func:`recorder_report`).
     """
     where = rec.source or rec.name or 'recording'
+    told = recorder_report(rec.source) if recorder and rec.source else None
+    head = [told] if told else []
     n = rec.t.size
     if n < MIN_SAMPLES:
-        return [f'{where}: {n} samples of {rec.roles["current"]} and {rec.roles["flow"]} '
-                f'({n * rec.dt:.3g} s); a fit needs at least {MIN_SAMPLES}: record longer']
+        return head + [f'{where}: {n} samples of {rec.roles["current"]} and '
+                       f'{rec.roles["flow"]} ({n * rec.dt:.3g} s); a fit needs at least '
+                       f'{MIN_SAMPLES}: record longer']
     kinds = {s: KINDS[s] for s in (KINDS if signals is None else signals)
              if s in KINDS and s in rec}
     kinds.update({rec.roles['current']: 'current', rec.roles['flow']: 'flow'})
-    out = []
+    out = head
     for s, kind in kinds.items():
         line = CHECKS[kind](s, np.asarray(rec[s], dtype=float), params)
         if line:
@@ -143,12 +155,98 @@ def problems(rec, params, signals: Iterable[str] | None = None) -> list[str]:
     return out
 
 
-def check_recordings(recs: Sequence, params, signals: Iterable[str] | None = None) -> None:
+def check_recordings(recs: Sequence, params, signals: Iterable[str] | None = None,
+                     recorder: bool = True) -> None:
     """Raise :class:`~.errors.PlausibilityError` with every problem of :func:`problems`."""
     signals = None if signals is None else list(signals)
-    lines = [line for rec in recs for line in problems(rec, params, signals)]
+    lines = [line for rec in recs for line in problems(rec, params, signals, recorder)]
     if lines:
         raise PlausibilityError(lines)
+
+
+# ---- what the recorder told ----------------------------------------------------------------
+
+#: Events that make a record unfit, as the recorder counts them (``events.<kind>``), and
+#: what they mean for the record.
+EVENT_WORDS = {'safe_current': ('safe-current engagement', 'safe-current engagements'),
+               'lock_step_timeout': ('lock-step timeout', 'lock-step timeouts')}
+
+
+def custom_data(path: str | Path) -> Mapping[str, str] | None:
+    """The ``custom_data`` of a bag (a directory, or one of its storage files), from its
+    ``metadata.yaml`` or else from the last ``rosbag2`` metadata record of an MCAP file;
+    ``None`` when the bag has none (a bag of another recorder, a killed one, not a bag)."""
+    import yaml
+    path = Path(path)
+    meta = path / 'metadata.yaml' if path.is_dir() else path.with_name('metadata.yaml')
+    try:
+        if meta.is_file() and (path.is_dir() or path.name in meta.read_text()):
+            info = yaml.safe_load(meta.read_text())['rosbag2_bagfile_information']
+            return info.get('custom_data') or None
+        if path.suffix == '.mcap' and path.is_file():
+            return _mcap_custom_data(path)
+    except Exception:  # noqa: BLE001 - an unreadable record tells nothing; reading says why
+        return None
+    return None
+
+
+def _mcap_custom_data(path: Path) -> Mapping[str, str] | None:
+    from mcap.records import Metadata
+    from mcap.stream_reader import StreamReader
+    import yaml
+    last = None
+    with path.open('rb') as f:
+        try:
+            for rec in StreamReader(f, record_size_limit=1 << 30).records:
+                if isinstance(rec, Metadata) and rec.name == 'rosbag2':
+                    last = rec.metadata.get('serialized_metadata')
+        except Exception:  # noqa: BLE001 - a truncated file: what was read before counts
+            pass
+    if last is None:
+        return None
+    return (yaml.safe_load(last) or {}).get('custom_data') or None
+
+
+def _count(value) -> int:
+    try:
+        return int(str(value))
+    except ValueError:
+        return 0
+
+
+def recorder_report(path: str | Path) -> str | None:
+    """One line naming what the recorder of the bag at ``path`` reported that makes its
+    record unfit for a fit, or ``None``: events (safe-current engagements, lock-step
+    timeouts, any other kind), with the simulation time of the first, and messages lost
+    (on the way, or left unwritten by a stop whose drain was cut at its bound)."""
+    cd = custom_data(path)
+    if not cd:
+        return None
+    told = []
+    for key, value in cd.items():
+        kind = key.removeprefix('events.')
+        if not key.startswith('events.') or kind.endswith('.first'):
+            continue
+        n = _count(value)
+        if n:
+            one, many = EVENT_WORDS.get(kind, (f'{kind} event', f'{kind} events'))
+            first = cd.get(f'events.{kind}.first')
+            told.append(f'{n} {one if n == 1 else many}'
+                        + (f' (the first at {float(first):g} s)' if first else ''))
+    lost = _count(cd.get('messages_lost', 0))
+    drain = cd.get('drain', 'complete')
+    if lost:
+        per = sorted(((k.removeprefix('lost.'), _count(v)) for k, v in cd.items()
+                      if k.startswith('lost.')), key=lambda x: -x[1])
+        told.append(f'{lost} messages lost (' + ', '.join(f'{t} {n}' for t, n in per[:3])
+                    + (', ...' if len(per) > 3 else '') + ')'
+                    + ('' if drain == 'complete' else f'; its stop was {drain}'))
+    elif drain.startswith('cut'):
+        told.append(f'a stop that was {drain}')
+    if not told:
+        return None
+    return (f'{path}: its recorder reports ' + '; '.join(told) + ': the record is not the '
+            'experiment as commanded; record it again')
 
 
 # ---- found while reading -------------------------------------------------------------------

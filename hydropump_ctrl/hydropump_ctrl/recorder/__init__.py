@@ -20,7 +20,7 @@ from hydropump_sim.schema import closest_name, spec
 
 from .bag import BagError, BagWriteError, BagWriter, message_definition, qos_profile, unique_path
 from .sequencer import Record, Sequencer
-from .session import header_stamp, Recorder, Session
+from .session import DRAIN_TIMEOUT, header_stamp, Recorder, Session
 
 __all__ = ['BagError', 'BagWriteError', 'BagWriter', 'DEFAULT_TOPICS', 'Record', 'Recorder',
            'RecorderConfig', 'Sequencer', 'Session', 'SUITE_TYPES', 'header_stamp',
@@ -35,6 +35,7 @@ SUITE_TYPES = {
     'controller/state': JOINT_STATE,
     '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
     '/clock': 'rosgraph_msgs/msg/Clock',
+    'events': 'diagnostic_msgs/msg/DiagnosticArray',
 }
 DEFAULT_TOPICS = ['solenoid_current_cmd', *_PLANT_TOPICS, 'controller/state']
 
@@ -66,6 +67,10 @@ class RecorderConfig:
                             'has delivered up to it (an orchestrator that paused the simulator '
                             'there gets the same bag however loaded the machine); 0 = the '
                             'latest /clock', 0.0, 1.0e6, default=0.0, live=True)
+    drain_timeout: float = spec('s', 'at a stop (~/stop, SIGINT, SIGTERM), how long the bag '
+                                'waits at most for what was published up to the stop and is '
+                                'still on its way; what it has not got then is counted as lost',
+                                0.1, 60.0, default=DRAIN_TIMEOUT)
 
 
 def unpublished_note(topic: str, known, grace: float) -> str:

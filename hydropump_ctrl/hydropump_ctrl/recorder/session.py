@@ -9,14 +9,27 @@
   simulator, or its ``/clock``, is discovered). A ``/clock`` under
   a wall-time bag, or simulation time going back (a new simulator), closes the bag and opens
   the next one; the log says why.
-- **Stop** (``~/stop``, SIGINT, SIGTERM): the caller first takes everything DDS has
-  delivered (:meth:`Recorder.swept`). Given an end time (``stop_time``), the bag ends
-  there, once every active topic has delivered up to it. Otherwise, if ``/clock`` then goes
-  quiet (a paused simulator at the end of an experiment), the bag ends at the last
-  ``/clock``, once every active topic has delivered up to it: what was still on its way is
-  in. If ``/clock`` runs on (a paced
-  run stopped by a signal), the bag ends at the ``/clock`` of the sweep: nothing after the
-  signal. Either way it closes by the deadline.
+- **Stop** (``~/stop``, SIGINT, SIGTERM) **drains**: the take loop goes on taking while the
+  bag waits for what was published up to the stop and is still on its way (queued in DDS,
+  or repaired by the publishers after a stall of the recorder). The stop's *instant* is the
+  latest ``/clock`` published at or before the request, by the publishers' source
+  timestamps (the rule of time), however far behind the recorder is: a paced run stopped by
+  a signal ends there, nothing after it. If ``/clock`` goes quiet instead (a paused
+  simulator at the end of an experiment), the bag ends at the last ``/clock``. Given an end
+  time (``stop_time``), the bag ends there. The bag closes once no topic is behind that
+  instant (:meth:`~.sequencer.Sequencer.behind`: a topic that stalls is waited for), and at
+  the latest after the drain's bound (``drain_timeout``, default :data:`DRAIN_TIMEOUT`;
+  ``stop_time`` stops pass their own, longer one). At the bound the caller takes
+  what is still queued without writing it (:meth:`Recorder.unwritten`): whatever belonged in
+  the bag is counted as lost, and so is each topic's missing tail up to the stop instant,
+  estimated from its rate; ``custom_data.drain`` says so.
+- **What the bag tells** (``custom_data``): ``time_base``; ``messages_lost`` and
+  ``lost.<topic>``; ``messages_late``; ``closed_by`` (``stop``, ``stop_time``, ``SIGINT``,
+  ``SIGTERM``, a new simulator, a write error); ``drain`` (``complete`` or cut at the bound);
+  and ``events.<kind>`` with ``events.<kind>.first`` (simulation time [s] of the first) for
+  every event of the ``events`` topic (``diagnostic_msgs/DiagnosticArray``, one status per
+  event, named by its kind): the controller's safe-current engagements and the simulator's
+  lock-step timeouts. A fit reads these (:mod:`hydropump_ctrl.ident.plausibility`).
 - **A write that fails** (disk full, a file-size limit, an I/O error): the writer closes the
   bag with the chunks written before (:class:`~.bag.BagWriteError`); the recorder records
   nothing more, and :attr:`Recorder.failed` says why (the node reports it and exits).
@@ -28,15 +41,21 @@ here, tested without DDS.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
 import struct
 import time
 from typing import Any, Protocol
 
-from .bag import BagError, BagWriteError, open_unique
+from .bag import BagError, BagWriteError, open_unique, typestore
 from .sequencer import Sequencer
+
+#: s: the default bound of a stop's drain (``RecorderConfig.drain_timeout``).
+DRAIN_TIMEOUT = 2.0
+#: The message type of the ``events`` topic: a stamped array, one status per event.
+EVENTS_TYPE = 'diagnostic_msgs/msg/DiagnosticArray'
 
 
 def header_stamp(data: bytes) -> int:
@@ -44,6 +63,15 @@ def header_stamp(data: bytes) -> int:
     little = data[1] == 1  # CDR encapsulation: 0x0001 little endian, 0x0000 big endian
     sec, nsec = struct.unpack_from('<iI' if little else '>iI', data, 4)
     return sec * 1_000_000_000 + nsec
+
+
+def event_names(data: bytes) -> list[str]:
+    """The kinds of the events of one serialized ``events`` message (its statuses' names)."""
+    try:
+        msg = typestore().deserialize_cdr(data, EVENTS_TYPE)
+    except Exception:  # noqa: BLE001 - a foreign message on the topic is one unknown event
+        return ['unreadable']
+    return [st.name or 'unnamed' for st in msg.status]
 
 
 class Graph(Protocol):
@@ -68,31 +96,43 @@ class Session:
         self.seq: Sequencer | None = None
         self.early: list = []                   # messages before the time base is known
         self.last_pub: dict[str, int] = {}      # topic -> last publication sequence number
-        self.lost: dict[str, int] = {}
+        self.lost: dict[str, int] = {}          # gaps, and what a cut drain left unwritten
+        self.estimated: dict[str, int] = {}     # of which estimated from a topic's rate
         self.stop_at: int | None = None         # sim ns: nothing after it is recorded
+        self.stop_wall: int | None = None       # wall ns: published after it is after a stop
         self.sim_stamped = False                # a stamp far from wall time: sim time
+        self.events: dict[str, list] = {name: [0, None] for name in rec.event_kinds}
+        self.last_src: dict[str, int] = {}      # topic -> its latest source timestamp [ns]
+        self.counted: dict[str, int] = {}       # topic -> latest log time counted as lost
 
     @property
     def messages(self) -> int:
         return self.writer.count
 
     def start_sequencer(self, mode: str) -> None:
-        self.seq = Sequencer(self.rec.topics, mode, idle_timeout=self.rec.cfg.idle_timeout)
+        rec = self.rec
+        self.seq = Sequencer(rec.topics, mode, idle_timeout=rec.cfg.idle_timeout,
+                             sparse=[rec.events] if rec.events else ())
         # Now, not only at close: a bag closed by a write error says it too.
         self.writer.custom_data['time_base'] = 'simulation' if mode == 'sim' else 'wall'
-        for topic in self.rec.graph.matched():
+        for topic in rec.graph.matched():
             self.seq.matched(topic)
         early, self.early = self.early, []
         for item in early:
             self._feed(*item[:5])
 
-    def message(self, topic: str, stamped: bool, data: bytes, info: dict) -> None:
+    def _sequence(self, topic: str, info: dict) -> None:
+        """Count a gap in the publisher's sequence numbers as messages lost on the way."""
         seq_no = info.get('publication_sequence_number')
         if seq_no is not None and self.rec.graph.publishers(topic) == 1:
             last = self.last_pub.get(topic)
             if last is not None and seq_no > last + 1:
                 self.lost[topic] = self.lost.get(topic, 0) + seq_no - last - 1
             self.last_pub[topic] = seq_no
+
+    def message(self, topic: str, stamped: bool, data: bytes, info: dict) -> None:
+        self._sequence(topic, info)
+        self.last_src[topic] = info['source_timestamp']
         item = (topic, stamped, data, info, time.time_ns())
         if self.seq is None:
             if stamped and abs(header_stamp(data) - item[4]) > SIM_STAMP:
@@ -102,15 +142,18 @@ class Session:
             self._feed(*item)
 
     def _feed(self, topic, stamped, data, info, received) -> None:
+        src = info['source_timestamp']
+        if self.seq.mode == 'wall' and self.stop_wall is not None and src > self.stop_wall:
+            return  # published after the stop
         stamp = header_stamp(data) if stamped else None
         if self.stop_at is not None and stamp is not None and stamp > self.stop_at:
             return  # after the stop
-        self.seq.message(topic, data, source_ns=info['source_timestamp'], stamp_ns=stamp,
-                         receive_ns=received)
+        self.seq.message(topic, data, source_ns=src, stamp_ns=stamp, receive_ns=received)
 
     def write(self, records) -> None:
         w = self.writer
         sim = self.seq.mode == 'sim'
+        events = self.rec.events
         for r in records:
             if self.stop_at is not None and sim and r.log_ns > self.stop_at:
                 continue  # after the stop
@@ -120,26 +163,84 @@ class Session:
             # One clock in a bag: in simulation time the publish time is the log time too
             # (a wall-clock send time beside it would mix clocks, and differ between runs).
             w.write(r.topic, r.log_ns, r.data, r.log_ns if sim else r.publish_ns)
+            if r.topic == events:
+                for name in event_names(r.data):
+                    seen = self.events.setdefault(name, [0, None])
+                    seen[0] += 1
+                    seen[1] = r.log_ns if seen[1] is None else min(seen[1], r.log_ns)
 
-    def complete(self) -> bool:
-        """Has every active topic delivered up to the stop time?"""
-        seq = self.seq
-        if seq is None or seq.mode == 'wall' or self.stop_at is None:
-            return True
-        return seq.complete(self.stop_at)
+    # ---- a drain cut at its bound --------------------------------------------------------
 
-    def close(self, reason: str) -> Path:
+    def unwritten(self, topic: str, stamped: bool, data: bytes, info: dict, until: bool
+                  ) -> None:
+        """A message taken after the drain's bound: lost if it belonged in the bag (at or
+        before the stop instant; for a stop without ``stop_time`` (``until`` false) also
+        published at or before the request)."""
+        self._sequence(topic, info)
+        src = info['source_timestamp']
+        if self.seq is None or self.seq.mode == 'wall':
+            log = src
+            belongs = self.stop_wall is None or src <= self.stop_wall
+        else:
+            log = header_stamp(data) if stamped else self.seq.time.time_of(src)
+            belongs = (log is not None and self.stop_at is not None and log <= self.stop_at
+                       and (until or src <= self.stop_wall))
+        if belongs:
+            self.lost[topic] = self.lost.get(topic, 0) + 1
+            if topic != self.rec.events:
+                self.counted[topic] = max(self.counted.get(topic, log), log)
+
+    def estimate_tails(self, since: float) -> None:
+        """Count as lost, per topic still behind the stop instant (see
+        :meth:`~.sequencer.Sequencer.behind`), the messages between its latest one (written,
+        held or counted) and the stop instant that never arrived, from its period."""
+        if self.seq is None or self.seq.mode == 'wall' or self.stop_at is None:
+            return
+        for topic, mark in self.seq.behind(self.stop_at, QUIET, since).items():
+            period = self.seq.period(topic)
+            if mark is None or not period:
+                continue
+            last = max(mark, self.counted.get(topic, mark))
+            n = (self.stop_at - last) // period
+            if n > 0:
+                self.estimated[topic] = n
+                self.lost[topic] = self.lost.get(topic, 0) + n
+
+    def untimed(self) -> int:
+        """Drop the messages that came before any ``/clock`` in a graph that has one (they
+        cannot be placed in simulation time); count those published before the stop as
+        lost. Returns how many were lost."""
+        n = 0
+        for topic, _, _, info, *_ in self.early:
+            if self.stop_wall is None or info['source_timestamp'] <= self.stop_wall:
+                self.lost[topic] = self.lost.get(topic, 0) + 1
+                n += 1
+        self.early = []
+        return n
+
+    # ---- close ---------------------------------------------------------------------------
+
+    def close(self, reason: str, drain: str | None = None,
+              keep: Callable[[str, int], bool] | None = None) -> Path:
         if self.seq is None and self.early:
             self.start_sequencer('wall')
+        cd = self.writer.custom_data
         if self.seq is not None:
-            self.write(self.seq.drain())
-            self.writer.custom_data.update({
+            self.write(self.seq.drain(keep))
+            cd.update({
                 'time_base': 'simulation' if self.seq.mode == 'sim' else 'wall',
-                'messages_lost': str(sum(self.lost.values())),
-                'messages_late': str(self.seq.late),
-                'closed_by': reason})
-            for topic, n in self.lost.items():
-                self.writer.custom_data[f'lost.{topic}'] = str(n)
+                'messages_late': str(self.seq.late)})
+            for topic, n in self.seq.untimed.items():   # their /clock was lost: lost too
+                self.lost[topic] = self.lost.get(topic, 0) + n
+        cd.update({'messages_lost': str(sum(self.lost.values())), 'closed_by': reason})
+        if drain is not None:
+            cd['drain'] = drain
+        for topic, n in self.lost.items():
+            cd[f'lost.{topic}'] = str(n)
+        for name, (n, first) in self.events.items():
+            cd[f'events.{name}'] = str(n)
+            if first is not None:
+                cd[f'events.{name}.first'] = f'{first * 1e-9:.6f}'
         return self.writer.close()
 
 
@@ -147,8 +248,35 @@ Log = Callable[[str, str], None]
 
 # A stamp this far [ns] from the wall clock is simulation time (a day).
 SIM_STAMP = 86_400 * 10 ** 9
-# /clock silent this long [s] after a stop's sweep: the simulator is paused or gone.
-QUIET = 0.2
+# s of the take loop's running time with nothing new: nothing more is on its way (longer than
+# two heartbeats of the publishers, config/fastdds.xml, which bring a stalled reader's
+# repairs); /clock that quiet during a stop: the simulator is paused or gone.
+QUIET = 0.3
+# s: a pass of the take loop later than this after the previous one is a stall of the
+# recorder; silence counts at most this much of it.
+STALL = 0.05
+
+
+@dataclass
+class _Stop:
+    """A stop under way (see the module)."""
+
+    deadline: float           # steady s: the drain's bound
+    wall: int                 # wall ns of the request
+    until: int | None         # sim ns of stop_time, if given
+    reason: str
+    since: float              # steady s of the request
+    clock_quiet: float = 0.0  # running s since the request with no new /clock
+    idle: float = 0.0         # running s since the request with nothing taken
+    last_pass: float | None = None
+    cut: bool = False         # the bound came first: the caller counts what is left
+
+    def tick(self, now: float) -> None:
+        if self.last_pass is not None:
+            dt = min(now - self.last_pass, STALL)
+            self.clock_quiet += dt
+            self.idle += dt
+        self.last_pass = now
 
 
 class Recorder:
@@ -159,24 +287,36 @@ class Recorder:
     ----------
     cfg : RecorderConfig
     topics : list of str
-        The recorded topics (resolved names), in release order.
+        The recorded topics (resolved names), in release order (``events`` among them).
     graph : Graph
     log : callable(level, text)
+    events : str, optional
+        The resolved name of the ``events`` topic (sparse; its events counted).
+    event_kinds : sequence of str
+        Event kinds whose count every bag states, 0 included.
     """
 
     def __init__(self, cfg: Any, topics: list[str], graph: Graph,
-                 log: Log = lambda level, text: print(f'[{level}] {text}')):
+                 log: Log = lambda level, text: print(f'[{level}] {text}'), *,
+                 events: str | None = None, event_kinds: Sequence[str] = ()):
         self.cfg = cfg
         self.topics = topics
         self.graph = graph
+        self.events = events
+        self.event_kinds = tuple(event_kinds)
         self._log = log
         self.session: Session | None = None
         self.closed: list[tuple[Path, int]] = []
-        self._stop: tuple[float, bool] | None = None   # (deadline, swept)
-        self._sweep_clock: int | None = None           # latest /clock at the sweep
-        self._last_clock = 0.0                          # steady time of the latest /clock
+        self.last: dict[str, Any] = {}                  # what the latest closed bag told
+        self._stop: _Stop | None = None
+        self._clock_publishers = 0
         self.output = cfg.output
         self.failed: BagWriteError | None = None        # a write failed: recording is over
+
+    @property
+    def drain_timeout(self) -> float:
+        """The bound of a stop's drain [s]."""
+        return self.cfg.drain_timeout
 
     # ---- sessions ------------------------------------------------------------------------
 
@@ -193,13 +333,23 @@ class Recorder:
                               f'{self.session.path.resolve()}')
         return self.session.path
 
-    def _close(self, reason: str) -> tuple[Path, int]:
+    def _close(self, reason: str, drain: str | None = None,
+               keep: Callable[[str, int], bool] | None = None) -> tuple[Path, int]:
         s, self.session = self.session, None
-        path = s.close(reason)
+        path = s.close(reason, drain, keep)
         lost = sum(s.lost.values())
-        self._log('info', f'closed {path.resolve()}: {s.messages} messages'
-                          + (f', {lost} LOST on the way' if lost else ''))
+        events = {k: n for k, (n, _) in s.events.items() if n}
+        self._log('warn' if lost or events else 'info',
+                  f'closed {path.resolve()}: {s.messages} messages'
+                  + (f', {lost} LOST' + (' (the drain was cut at its bound)'
+                                         if drain and drain.startswith('cut') else '')
+                     if lost else '')
+                  + ''.join(f', {n} {k} events' for k, n in events.items()))
         self.closed.append((path, s.messages))
+        self.last = {'last_bag': str(path), 'last_bag_messages': s.messages,
+                     'last_bag_lost': lost, 'last_bag_closed_by': reason,
+                     **({'last_bag_drain': drain} if drain else {}),
+                     **{f'last_bag_events.{k}': n for k, n in events.items()}}
         return self.closed[-1]
 
     def _fail(self, exc: BagWriteError) -> None:
@@ -210,6 +360,10 @@ class Recorder:
 
     def _restart(self, why: str, clock_ns: int, source_ns: int, sequence: int | None,
                  writer=None) -> None:
+        if self._stop is not None:
+            # The recording is ending: the new simulator's time goes in no bag.
+            self._finish(why)
+            return
         old, _ = self._close(why)
         self.start()
         self.session.start_sequencer('sim')
@@ -221,6 +375,8 @@ class Recorder:
     def message(self, topic: str, stamped: bool, data: bytes, info: dict) -> None:
         if self.session is not None:
             self.session.message(topic, stamped, data, info)
+            if self._stop is not None:
+                self._stop.idle = 0.0
 
     def clock(self, data: bytes, info: dict) -> None:
         try:
@@ -244,8 +400,8 @@ class Recorder:
         jump = s.seq.clock(ns, src, seq_no, writer)
         if jump is not None:
             self._restart(jump.describe(), ns, src, seq_no, writer)
-        elif before is None or ns > before:
-            self._last_clock = time.monotonic()
+        elif (before is None or ns > before) and self._stop is not None:
+            self._stop.clock_quiet = self._stop.idle = 0.0
 
     def matched(self) -> None:
         """The graph's matched publishers changed (a periodic check)."""
@@ -256,68 +412,176 @@ class Recorder:
 
     def advance(self, clock_publishers: int) -> None:
         """After each pass of the take loop: write what may be written, decide a bag's time
-        base, finish a stop."""
+        base, end a stop."""
         try:
             self._advance(clock_publishers)
         except BagWriteError as exc:
             self._fail(exc)
 
     def _advance(self, clock_publishers: int) -> None:
-        s = self.session
+        s, st = self.session, self._stop
         if s is None:
             return
-        stopping = self._stop is not None and self._stop[1]
+        self._clock_publishers = clock_publishers
         now = time.monotonic()
+        if st is not None:
+            st.tick(now)
         if s.seq is None:
             if s.early and now - s.early[0][5] > self.cfg.clock_wait and \
                     clock_publishers == 0 and not s.sim_stamped:
                 s.start_sequencer('wall')
-            elif stopping:
-                self._close('stop')
+            elif st is not None:
+                self._undecided_stop(s, st, now)
             return
         s.seq.pass_done()
-        if stopping and s.stop_at is None and s.seq.mode == 'sim':
-            deadline = self._stop[0]
-            if now - self._last_clock > QUIET:
-                s.stop_at = s.seq.time.latest          # paused: up to its last /clock
-            elif now > deadline - 2 * QUIET:
-                s.stop_at = self._sweep_clock          # running on: up to the signal
+        if st is not None and s.stop_at is None and s.seq.mode == 'sim':
+            s.stop_at = self._stop_instant(s, st)
+            if s.stop_at is None:
+                # Not known yet: write nothing that could lie after it.
+                if now > st.deadline:
+                    st.cut = True
+                return
         s.write(s.seq.ready())
-        if stopping and (s.stop_at is not None and s.complete() or now > self._stop[0]):
-            self._close('stop')
+        if st is None:
+            return
+        if self._drained(s, st):
+            self._finish(st.reason, 'complete')
+        elif now > st.deadline:
+            st.cut = True
+
+    def _undecided_stop(self, s: Session, st: _Stop, now: float) -> None:
+        """A stop before the bag's time base is known."""
+        if s.early and self._clock_publishers == 0 and not s.sim_stamped:
+            s.start_sequencer('wall')   # no /clock in the graph: nothing to wait for
+        elif not s.early and st.idle >= QUIET:
+            self._finish(st.reason, 'complete')   # nothing came, nothing is coming
+        elif now > st.deadline:
+            st.cut = True   # the caller counts what is left; what came is untimed
+
+    def _stop_instant(self, s: Session, st: _Stop) -> int | None:
+        """Simulation time [ns] of a stop: ``stop_time``; the latest /clock published at or
+        before the request, once a later one has come; the latest /clock once /clock is
+        quiet; ``None`` while neither is known."""
+        if st.until is not None:
+            return st.until
+        tb = s.seq.time
+        if tb.latest_source is not None and tb.latest_source > st.wall:
+            t = tb.time_of(st.wall)
+            return t if t is not None else -1   # the first /clock came after the stop
+        if st.clock_quiet >= QUIET:
+            return tb.latest
+        return None
+
+    def _drained(self, s: Session, st: _Stop) -> bool:
+        """Has everything that belongs in the bag been taken?"""
+        if s.seq.mode == 'wall':
+            if st.until is not None:
+                return True   # a stop_time is simulation time: a wall-time bag ends now
+            # Every topic has sent something after the request, or is quiet.
+            return all(s.last_src.get(t, -1) > st.wall or s.seq.silent(t, st.since) >= QUIET
+                       for t in self.topics if t != self.events)
+        return not s.seq.behind(s.stop_at, QUIET, st.since)
+
+    def _keep(self, s: Session, st: _Stop | None) -> Callable[[str, int], bool] | None:
+        """Which unstamped messages still waiting for a later /clock a closing bag keeps
+        (:meth:`Sequencer.drain`)."""
+        if st is None or st.until is not None or s.seq is None or s.seq.mode != 'sim':
+            return None
+        tb = s.seq.time
+        if tb.latest_source is not None and tb.latest_source > st.wall:
+            return lambda topic, src: False   # sent after a /clock after the stop: after it
+        if st.clock_quiet >= QUIET and not st.cut:
+            return None                        # paused: the latest /clock is theirs
+
+        def keep(topic: str, src: int) -> bool:
+            # Their /clock may not have come: their time is unknown, lost if sent before.
+            if src <= st.wall:
+                s.lost[topic] = s.lost.get(topic, 0) + 1
+            return False
+        return keep
+
+    def _finish(self, reason: str, drain: str | None = None, early: bool = False) -> None:
+        """Close the bag of a stop; ``early``: before the drain decided (the waiting
+        messages then take the latest /clock, as if it were quiet)."""
+        s, st = self.session, self._stop
+        self._stop = None
+        if s is None:
+            return
+        if st is not None and s.seq is None and s.early and (self._clock_publishers or
+                                                             s.sim_stamped):
+            s.untimed()
+        self._close(reason, drain, None if early else self._keep(s, st))
 
     # ---- stop ----------------------------------------------------------------------------
 
-    def request_stop(self, limit: float, until_ns: int | None = None) -> bool:
-        """Begin a stop that ends within ``limit`` s, at simulation time ``until_ns`` if
-        given (see the module otherwise); ``False`` if not recording."""
+    def request_stop(self, limit: float, until_ns: int | None = None, *, reason: str = 'stop',
+                     wall_ns: int | None = None) -> bool:
+        """Begin a stop that ends within ``limit`` s (the drain's bound), at simulation time
+        ``until_ns`` if given (see the module otherwise); ``wall_ns`` is the wall time of
+        the request (default now), ``reason`` what ``closed_by`` will say. ``False`` if not
+        recording."""
         if self.session is None:
             return False
-        self._stop = (time.monotonic() + limit, False)
+        now = time.monotonic()
+        wall = time.time_ns() if wall_ns is None else wall_ns
+        self._stop = _Stop(now + limit, wall, until_ns, reason, now)
         self.session.stop_at = until_ns
+        self.session.stop_wall = None if until_ns is not None else wall
         return True
 
-    @property
-    def needs_sweep(self) -> bool:
-        """A stop waits for the caller to take everything DDS has delivered."""
-        return self._stop is not None and not self._stop[1]
-
-    @property
-    def stop_deadline(self) -> float:
-        return self._stop[0] if self._stop else 0.0
-
     def swept(self) -> None:
-        """Everything DDS had delivered is taken (see the module for what follows)."""
-        s = self.session
-        self._sweep_clock = s.seq.time.latest if s is not None and s.seq is not None else None
-        self._stop = (self._stop[0], True)
+        """Everything DDS had delivered is taken. The drain needs no such mark (the take
+        loop goes on taking until the bag closes); kept for callers that give it."""
+
+    @property
+    def needs_count(self) -> bool:
+        """The drain's bound passed first: the caller takes what is still queued and hands
+        it to :meth:`unwritten`, then calls :meth:`counted`."""
+        return self._stop is not None and self._stop.cut and self.session is not None
+
+    def settle_stop(self) -> None:
+        """At the bound, with every queued /clock taken: fix the stop instant from what is
+        known (the latest /clock published at or before the request)."""
+        s, st = self.session, self._stop
+        if s is None or st is None or s.seq is None or s.seq.mode != 'sim' or \
+                s.stop_at is not None:
+            return
+        tb = s.seq.time
+        t = tb.time_of(st.wall)
+        s.stop_at = t if t is not None else -1
+
+    def unwritten(self, topic: str, stamped: bool, data: bytes, info: dict) -> None:
+        """A message taken after the drain's bound: not written; lost if it belonged in
+        the bag."""
+        s, st = self.session, self._stop
+        if s is not None and st is not None:
+            s.unwritten(topic, stamped, data, info, st.until is not None)
+
+    def counted(self) -> None:
+        """After :meth:`unwritten`: estimate the tails that never arrived, close the bag."""
+        s, st = self.session, self._stop
+        if s is None or st is None:
+            return
+        try:
+            if s.seq is not None:
+                self.settle_stop()
+                s.write(s.seq.ready())
+                s.estimate_tails(st.since)
+            bound = f'{self.drain_timeout:g} s' if st.until is None else 'its bound'
+            estimated = sum(s.estimated.values())
+            drain = (f'cut after {bound}: what was still on its way is counted as lost'
+                     + (f' ({estimated} of them estimated from the rates of '
+                        f'{", ".join(sorted(s.estimated))})' if estimated else ''))
+            self._finish(st.reason, drain)
+        except BagWriteError as exc:
+            self._fail(exc)
 
     def finish_stop(self) -> tuple[Path, int] | None:
         """End a stop (closing now if the take loop did not); the bag closed, if any
         (``None`` if a write failed: see :attr:`failed`)."""
         if self.session is not None and self._stop is not None:
             try:
-                self._close('stop')
+                self._finish(self._stop.reason, 'closed before it ended', early=True)
             except BagWriteError as exc:
                 self._fail(exc)
         self._stop = None
@@ -338,6 +602,10 @@ class Recorder:
         if s is not None:
             values.update({'bag': str(s.path), 'messages': s.messages,
                            'buffered': s.seq.buffered if s.seq else len(s.early),
-                           'late': s.seq.late if s.seq else 0, 'lost': sum(s.lost.values()),
+                           'late': s.seq.late if s.seq else 0,
+                           'lost': sum(s.lost.values()) + (sum(s.seq.untimed.values())
+                                                           if s.seq else 0),
                            'time_base': s.seq.mode if s.seq else 'deciding'})
+            values.update({f'events.{k}': n for k, (n, _) in s.events.items()})
+        values.update(self.last)
         return values

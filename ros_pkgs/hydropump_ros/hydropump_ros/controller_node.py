@@ -10,7 +10,10 @@ the supervisor returns:
 - ``~/state`` (``sensor_msgs/JointState`` used as a stamped named vector: reference,
   estimate, disturbance estimate, command; the mode in ``header.frame_id``), stamped with the
   simulation time of the update;
-- ``/diagnostics``.
+- ``/diagnostics``;
+- ``events``: each engagement of the safe current (the watchdog, or a control law that
+  failed) as one event, stamped with the simulation time it happened at, so that a bag
+  recorded meanwhile says so.
 
 ``~/reference`` (``std_msgs/Float64``, SI) sets the reference of the present mode; gains,
 mode and references are live parameters. ``autostart`` configures and activates at start-up.
@@ -38,7 +41,8 @@ from hydropump_sim.params import default_params_path
 from hydropump_sim.schema import check_all, ParamError, read_params_file, specs_of
 
 from . import bridge, entry
-from .conversions import CLOCK, ClockWriter, stamp, to_ns
+from .conversions import CLOCK, ClockWriter, EVENTS, EVENTS_QOS, SAFE_CURRENT, stamp, to_ns
+from .conversions import event as event_message
 
 # What the laws read: the flow signal (line_flow or pump_flow), the current (bumpless starts)
 # and the two pressures of the margin. Every sample costs an executor callback, so nothing
@@ -81,6 +85,8 @@ class ControllerNode(bridge.ExplainedParameters, LifecycleNode):
                                                       {p.name: p.value for p in params})))
         self._entities: list = []
         self._io_entities: list = []
+        # Not a lifecycle publisher: an engagement is told whatever the state.
+        self._pub_events = self.create_publisher(DiagnosticArray, EVENTS, EVENTS_QOS)
 
     def _locked(self, fn, *args, **kw):
         with self._lock:
@@ -89,7 +95,30 @@ class ControllerNode(bridge.ExplainedParameters, LifecycleNode):
     def _run(self, fn, *args, **kw) -> None:
         """A supervisor call under the lock; its output published."""
         with self._lock:
-            self._publish(fn(*args, **kw))
+            errors = self.sup.counts['control_errors']
+            out = fn(*args, **kw)
+            self._publish(out)
+            if out is not None and self.sup.counts['control_errors'] > errors:
+                self._event(out, 'the control law failed: commanding the safe current '
+                                 f'{out.command:g} A')
+
+    def _check_watchdog(self) -> None:
+        """The watchdog; its engagement of the safe current told on ``events``."""
+        with self._lock:
+            was = self.sup.mode_state
+            out = self.sup.check_watchdog()
+            self._publish(out)
+            if out is not None and was != 'safe' and self.sup.mode_state == 'safe':
+                wd = self.sup.watchdog
+                clock = 'simulation' if wd.simulation_time else 'steady'
+                self._event(out, f'no measurements for watchdog.safe_timeout = '
+                                 f'{wd.safe_timeout:g} s ({clock} time): commanding the safe '
+                                 f'current {out.command:g} A')
+
+    def _event(self, out, text: str) -> None:
+        ns = out.stamp_ns if out.stamp_ns is not None else self.get_clock().now().nanoseconds
+        self._pub_events.publish(event_message(SAFE_CURRENT, ns, text, 'controller',
+                                               command_A=out.command))
 
     def _log(self, level: str, text: str) -> None:
         entry.log(self.get_logger(), level, text)
@@ -130,7 +159,7 @@ class ControllerNode(bridge.ExplainedParameters, LifecycleNode):
             self.create_timer(cfg.period, lambda: self._run(
                 sup.wall_tick, wall.now().nanoseconds, self.count_publishers(CLOCK)),
                 clock=steady),
-            self.create_timer(0.05, lambda: self._run(sup.check_watchdog), clock=steady),
+            self.create_timer(0.05, self._check_watchdog, clock=steady),
             self.create_timer(0.1, writer.refresh, clock=steady),
             self.create_timer(1.0, self._publish_diagnostics, clock=steady)]
         self.get_logger().info(f'configured: {cfg.controller.algorithm} in '

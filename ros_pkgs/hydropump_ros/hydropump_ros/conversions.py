@@ -3,17 +3,34 @@
 - Pressures: the plant works in gauge pressure; ``sensor_msgs/FluidPressure`` carries absolute
   pressure (REP-103), so the simulator adds ``p_atm`` once, here.
 - Stamps: simulation time as integer nanoseconds <-> ``builtin_interfaces/Time``.
+- Events: what makes a record unfit for identification, as one stamped message each on
+  :data:`EVENTS` (:func:`event`).
 """
 
 from __future__ import annotations
 
 from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 NS = 1_000_000_000
 # The simulator's clock topic, relative: ``/clock`` in the root namespace as ROS tools expect,
 # ``/<ns>/clock`` for a pump in namespace ``<ns>``, so that several pumps share a domain,
 # each node following the simulator of its own namespace (docs/ros.md).
 CLOCK = 'clock'
+# The events topic, relative for the same reason (``/diagnostics`` is shared by every pump
+# and its status names carry no namespace): ``diagnostic_msgs/DiagnosticArray`` stamped with
+# the simulation time of the event, one status per event, named by its kind. The recorder
+# always records it and counts the kinds in the bag's ``custom_data``.
+EVENTS = 'events'
+# The kinds: the plant got the safe current instead of the commands (a controller's
+# watchdog or a failed control law, the simulator's command watchdog); a lock-step instant
+# advanced without its command.
+SAFE_CURRENT = 'safe_current'
+LOCK_STEP_TIMEOUT = 'lock_step_timeout'
+EVENT_KINDS = (SAFE_CURRENT, LOCK_STEP_TIMEOUT)
+# Events are rare and each one matters: reliable, and a backlog a slow reader can catch up.
+EVENTS_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 
 
 def absolute(gauge: float, p_atm: float) -> float:
@@ -66,3 +83,16 @@ class ClockWriter:
             self.refresh()
         self._last = source_ns
         return self.tag
+
+
+def event(kind: str, ns: int, message: str, source: str, **values) -> DiagnosticArray:
+    """One event of ``kind`` at ``ns`` (simulation time where a ``/clock`` runs), for
+    :data:`EVENTS`: ``message`` says what happened, ``source`` which node, ``values`` the
+    figures (SI)."""
+    st = DiagnosticStatus(level=DiagnosticStatus.WARN, name=kind, message=message,
+                          hardware_id='hydropump',
+                          values=[KeyValue(key='source', value=source)]
+                          + [KeyValue(key=k, value=str(v)) for k, v in values.items()])
+    arr = DiagnosticArray(status=[st])
+    arr.header.stamp = stamp(ns)
+    return arr

@@ -12,8 +12,13 @@ recorder's questions about the graph (types, matched publishers, their QoS).
   ``/clock`` that appears under a bag recorded in wall time does the same. Each says so.
 - Messages lost on the way (gaps in a publisher's sequence numbers) are counted, reported in
   ``/diagnostics`` and in the bag's ``custom_data``; never silent.
-- ``~/stop``, SIGINT and SIGTERM stop at once: the bag gets what was published up to the
-  latest ``/clock`` and had arrived, or arrives within the next second, and closes.
+- ``~/stop``, SIGINT and SIGTERM drain: the bag gets what was published up to the ``/clock``
+  of the request (or up to ``stop_time``), also what a lagging recorder has still to take or
+  the publishers still to repair, within ``drain_timeout``; whatever of it is not written
+  then is counted as lost (:mod:`hydropump_ctrl.recorder.session`). ``closed_by`` says how
+  the bag was closed.
+- The namespace's ``events`` topic (safe-current engagements, lock-step timeouts) is always
+  recorded, whatever ``topics`` says, and counted in ``custom_data``.
 
 - A topic name that is empty or invalid ends start-up with one ``error:`` line (exit code 2);
   a recorded topic that no publisher offers within :data:`TOPIC_GRACE` of start-up (or of
@@ -29,7 +34,9 @@ answers whether every topic has a matched publisher.
 
 from __future__ import annotations
 
+import contextlib
 import importlib
+import signal
 import sys
 import threading
 import time
@@ -48,16 +55,18 @@ from hydropump_ctrl.recorder import (
     SUITE_TYPES,
     unpublished_note,
 )
+from hydropump_ctrl.recorder.session import EVENTS_TYPE
 from hydropump_sim.schema import spec_map, specs_of
 
 from . import bridge, entry
-from .conversions import CLOCK, ClockWriter
+from .conversions import CLOCK, ClockWriter, EVENT_KINDS, EVENTS
 
 # The take loop's sleep after an empty pass: first, and at most [s].
 IDLE_NAP = (0.0005, 0.004)
 
-STOP_LIMIT = 0.8   # s: a stop waits at most this long for messages still on their way
-END_LIMIT = 30.0   # s: ... and this long for every topic to reach a given stop_time
+END_LIMIT = 30.0   # s: a stop waits this long for every topic to reach a given stop_time
+# s after the drain's bound to take (not write) what is still queued, and count it.
+COUNT_LIMIT = 0.25
 # s after start-up or ~/start: a recorded topic with no publisher yet is reported (longer
 # than a discovery that missed its first announcements, 3 s later in Fast DDS).
 TOPIC_GRACE = 5.0
@@ -94,6 +103,10 @@ class RecorderNode(bridge.ExplainedParameters, Node):
         self.schema_specs = spec_map(RecorderConfig)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._lock = threading.RLock()
+        # Threads waiting for the lock: the take loop, which takes it again at once while a
+        # backlog lasts, steps aside for them (a lock is not fair: a stop could starve).
+        self._waiting = 0
+        self._count_lock = threading.Lock()
         self.types: dict[str, str] = {}
         self._pub_counts: dict[str, int] = {}
         topics = self._resolve(self.cfg.topics)
@@ -101,8 +114,13 @@ class RecorderNode(bridge.ExplainedParameters, Node):
         self._failure_said = False
         self._grace_from = time.monotonic()
         self._unpublished: dict[str, str] = {}       # topic -> what the log said of it
+        # The topics a publisher is expected on: events always recorded, maybe silent.
+        self._expected = list(topics)
+        self.events = self.resolve_topic_name(EVENTS)
+        if self.events not in topics:
+            topics.append(self.events)
         self.rec = Recorder(self.cfg, topics, self, log=lambda lvl, txt: entry.log(
-            self.get_logger(), lvl, txt))
+            self.get_logger(), lvl, txt), events=self.events, event_kinds=EVENT_KINDS)
         self._qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                                history=HistoryPolicy.KEEP_ALL)
         # The data subscriptions live on a node that no executor spins: the take loop serves
@@ -113,8 +131,9 @@ class RecorderNode(bridge.ExplainedParameters, Node):
             _msg_class(SUITE_TYPES['/clock']), CLOCK, lambda *_: None, self._qos, raw=True)
         for name, topic in zip(self.cfg.topics, topics):
             msgtype = SUITE_TYPES.get(name) or SUITE_TYPES.get(topic)
-            if msgtype:
+            if msgtype and topic != self.events:
                 self._add(topic, msgtype)
+        self._add(self.events, EVENTS_TYPE)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._writer = ClockWriter(self)
         self.create_timer(0.2, self._discover, clock=steady)
@@ -125,6 +144,7 @@ class RecorderNode(bridge.ExplainedParameters, Node):
         self.create_service(Trigger, '~/ready', self._on_ready)
         self._halt = threading.Event()
         self._stopped = threading.Event()
+        self._signal = self._name_signals()
         if self.cfg.autostart:
             try:
                 self.rec.start()
@@ -155,7 +175,7 @@ class RecorderNode(bridge.ExplainedParameters, Node):
         fields = list(cls.get_fields_and_field_types().items())
         stamped = bool(fields) and fields[0] == ('header', 'std_msgs/Header')
         sub = self._io.create_subscription(cls, topic, lambda *_: None, self._qos, raw=True)
-        with self._lock:
+        with self._exclusive():
             self.types[topic] = msgtype
             self._subs.append((sub, topic, stamped))
 
@@ -168,7 +188,7 @@ class RecorderNode(bridge.ExplainedParameters, Node):
                     self._add(topic, graph[topic][0])
         counts = {topic: self._io.count_publishers(topic) for topic in self.types}
         self._writer.refresh()
-        with self._lock:
+        with self._exclusive():
             self._pub_counts = counts
             self.rec.matched()
         self._check_publishers()
@@ -180,7 +200,7 @@ class RecorderNode(bridge.ExplainedParameters, Node):
             return
         matched = set(self.matched())
         known = None
-        for topic in self.rec.topics:
+        for topic in self._expected:
             if topic in matched:
                 if self._unpublished.pop(topic, None):
                     self._log('info', f'{topic}: a publisher is there now')
@@ -193,6 +213,16 @@ class RecorderNode(bridge.ExplainedParameters, Node):
 
     def _log(self, level: str, text: str) -> None:
         entry.log(self.get_logger(), level, text)
+
+    @contextlib.contextmanager
+    def _exclusive(self):
+        """The lock, for any thread but the take loop's."""
+        with self._count_lock:
+            self._waiting += 1
+        with self._lock:
+            with self._count_lock:
+                self._waiting -= 1
+            yield
 
     def matched(self) -> list[str]:
         return [topic for sub, topic, _ in self._subs if sub.get_publisher_count() > 0]
@@ -213,19 +243,19 @@ class RecorderNode(bridge.ExplainedParameters, Node):
         # Between empty passes the loop sleeps 0.5 ms, doubling up to 4 ms while nothing
         # comes: a graph that stands still (paused, between experiments) costs no CPU, and
         # a stream is never left more than 4 ms behind (its writers keep a second of it).
+        # A stop changes nothing here: the loop takes on while the recorder drains.
         nap = IDLE_NAP[0]
         while not self._halt.is_set():
             with self._lock:
                 rec = self.rec
-                if rec.needs_sweep:
-                    # Stop: first everything DDS has delivered, then nothing after it.
-                    while self._take(10 ** 9) and time.monotonic() < rec.stop_deadline:
-                        pass
-                    rec.swept()
+                if rec.needs_count:
+                    self._count_rest()
                 got = self._take(batch)
-                if rec.stopping is False and rec.needs_sweep is False:
+                if not rec.stopping:
                     self._stopped.set()
                 failed = rec.failed is not None
+            if self._waiting:
+                time.sleep(0.001)
             if failed:
                 self._write_failed()
                 return
@@ -258,30 +288,79 @@ class RecorderNode(bridge.ExplainedParameters, Node):
                     rec.session.seq is None else 1)
         return got
 
+    def _count_rest(self) -> None:
+        """The drain's bound passed: take what is still queued, ``/clock`` first (the stop
+        instant may lie in it), without writing it; the recorder counts what belonged in the
+        bag as lost and closes it."""
+        rec = self.rec
+        end = time.monotonic() + COUNT_LIMIT
+        clock = self._clock_sub
+        while time.monotonic() < end:
+            taken = clock.handle.take_message(clock.msg_type, True)
+            if taken is None:
+                break
+            data, info = taken
+            info['writer'] = self._writer.of(info['source_timestamp'])
+            rec.clock(data, info)
+        rec.settle_stop()
+        for sub, topic, stamped in self._subs:
+            while time.monotonic() < end:
+                taken = sub.handle.take_message(sub.msg_type, True)
+                if taken is None:
+                    break
+                rec.unwritten(topic, stamped, *taken)
+        rec.counted()
+
     # ---- start / stop --------------------------------------------------------------------
 
-    def stop(self, until: float = 0.0):
+    def stop(self, until: float = 0.0, reason: str = 'stop'):
         """Stop recording: at simulation time ``until`` [s] if given, else now (see
-        :mod:`hydropump_ctrl.recorder.session`)."""
-        limit = END_LIMIT if until > 0.0 else STOP_LIMIT
-        with self._lock:
-            if not self.rec.request_stop(limit, int(round(until * 1e9)) if until else None):
+        :mod:`hydropump_ctrl.recorder.session`); ``reason`` is what ``closed_by`` says."""
+        limit = END_LIMIT if until > 0.0 else self.rec.drain_timeout
+        reason = 'stop_time' if until > 0.0 else reason
+        wall = time.time_ns()  # the publishers' clock: what was sent before belongs in
+        with self._exclusive():
+            if not self.rec.request_stop(limit, int(round(until * 1e9)) if until else None,
+                                         reason=reason, wall_ns=wall):
                 return None
             self._stopped.clear()
+        self._log('info', f'stopping ({reason}): taking what was published up to '
+                          + (f'stop_time = {until:g} s' if until else 'now')
+                          + f', at most {limit:g} s')
         if self._taker.is_alive():
-            self._stopped.wait(limit + 1.0)
-        with self._lock:
+            self._stopped.wait(limit + COUNT_LIMIT + 1.0)
+        with self._exclusive():
             done = self.rec.finish_stop()
         if self.rec.failed is not None:
             self._write_failed()
+        else:
+            self._publish_diagnostics()
         return done
+
+    def _name_signals(self) -> list[str]:
+        """Note which signal ends the node (``closed_by``); the handlers ``entry`` installed
+        still run after."""
+        got: list[str] = []
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            before = signal.getsignal(sig)
+
+            def handler(signum, frame, before=before):
+                if not got:
+                    got.append(signal.Signals(signum).name)
+                if callable(before):
+                    before(signum, frame)
+            try:
+                signal.signal(sig, handler)
+            except ValueError:  # not the main thread (a node built in a test): no name
+                break
+        return got
 
     def _write_failed(self) -> None:
         """A write failed (the bag is closed with what it could keep): say so on
         /diagnostics now, and end the process after :data:`FAIL_LINGER`, so that a
         supervisor sees the exit code and the reason rather than a recorder that records
         nothing."""
-        with self._lock:
+        with self._exclusive():
             if self._failure_said:
                 return
             self._failure_said = True
@@ -293,7 +372,7 @@ class RecorderNode(bridge.ExplainedParameters, Node):
 
     def close(self) -> None:
         """SIGINT or SIGTERM: stop recording, close the bag, end the take loop."""
-        self.stop()
+        self.stop(reason=self._signal[0] if self._signal else 'shutdown')
         self._halt.set()
         self._taker.join(timeout=2.0)
         self._io.destroy_node()
@@ -305,7 +384,7 @@ class RecorderNode(bridge.ExplainedParameters, Node):
 
     def _on_start(self, request, response):
         try:
-            with self._lock:
+            with self._exclusive():
                 path = self.rec.start()
         except BagError as exc:
             response.success, response.message = False, exc.lines[0]
@@ -327,7 +406,7 @@ class RecorderNode(bridge.ExplainedParameters, Node):
         """Ready when every recorded topic has a matched publisher: an experiment that
         starts after this loses nothing to discovery."""
         matched = set(self.matched())
-        waiting = [t for t in self.rec.topics if t not in matched]
+        waiting = [t for t in self._expected if t not in matched]
         response.success = not waiting
         response.message = ('waiting for a publisher on ' + ', '.join(waiting) if waiting
                             else 'all topics matched')
@@ -342,17 +421,20 @@ class RecorderNode(bridge.ExplainedParameters, Node):
         return bridge.result(reason)
 
     def _publish_diagnostics(self) -> None:
-        with self._lock:
+        with self._exclusive():
             values = self.rec.diagnostics()
             failed = self.rec.failed
         unpublished = list(self._unpublished.values())
         values['unpublished'] = ', '.join(self._unpublished)
         lost = values.get('lost', 0)
+        last = values.get('last_bag_lost', 0)
         if failed is not None:
             level, message = DiagnosticStatus.ERROR, f'write failed: {failed.reason}'
-        elif lost or unpublished:
+        elif lost or last or unpublished:
             level = DiagnosticStatus.WARN
-            message = '; '.join(([f'{lost} messages lost'] if lost else []) + unpublished)
+            message = '; '.join(([f'{lost} messages lost'] if lost else [])
+                                + ([f'the last bag lost {last} messages'] if last else [])
+                                + unpublished)
         else:
             level, message = DiagnosticStatus.OK, ('recording' if values['recording']
                                                    else 'idle')

@@ -6,7 +6,9 @@ Per step, in this order: ``/clock`` (the step's simulation time), the measuremen
 with it (``joint_states`` last), then ``solenoid_current`` (the current held from this step
 on; in lock-step after the controller's command for the period has arrived). An unstamped
 message therefore belongs to the latest ``/clock`` published before it
-(:mod:`hydropump_ctrl.timebase`).
+(:mod:`hydropump_ctrl.timebase`). A lock-step instant that advanced without its command
+(``lock_step_timeout``) and a trip of the command watchdog (the safe current applied) are
+each an event on ``events``, stamped with the simulation time they happened at.
 """
 
 from __future__ import annotations
@@ -36,18 +38,29 @@ from hydropump_sim.schema import assignments, check_all, ParamError, read_params
 from hydropump_sim.sensors import load_profile, SensorConfig, SensorProfile
 
 from . import bridge, entry
-from .conversions import absolute, CLOCK, seconds_to_ns, set_stamp, stamp
+from .conversions import (
+    absolute,
+    CLOCK,
+    EVENTS,
+    EVENTS_QOS,
+    LOCK_STEP_TIMEOUT,
+    SAFE_CURRENT,
+    seconds_to_ns,
+    set_stamp,
+    stamp,
+)
+from .conversions import event as event_message
 
-# How long a new simulator keeps looking for another publisher of its clock topic [s]:
-# discovery on a loaded machine can take seconds. Two simulators started within this of each
-# other both refuse; a later one refuses alone. It takes its first step only after
-# FIRST_LOOK without one, counted from its first look and from the last change it saw in the
-# graph (on a loaded machine the other participants' endpoints come in over a while): a
-# simulator that refuses has published nothing.
+# How long a new simulator looks for another publisher of its clock topic before its first
+# step [s]: a simulator that refuses has published nothing. Discovery usually takes tenths of
+# a second, but a lost announcement is repeated only with Fast DDS's 3 s lease announcement
+# (seen on a loaded machine: 2.9 s), so the look lasts that long. Two simulators started
+# within it of each other both refuse; a later one refuses alone.
 DISCOVERY_WINDOW = 3.0
-FIRST_LOOK = 0.5
 # The prefix of the circuit's operator inputs as live parameters (inputs.boom.command).
 INPUTS = 'inputs.'
+# The runner's events (its stats keys) as the suite's event kinds.
+EVENT_KINDS = {'lock_step_timeouts': LOCK_STEP_TIMEOUT, 'watchdog_trips': SAFE_CURRENT}
 
 
 def all_specs():
@@ -81,6 +94,7 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
             self.create_subscription(Float64, topic,
                                      lambda m, n=name: self.runner.set_input(n, m.data), 10)
         self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self._pub_events = self.create_publisher(DiagnosticArray, EVENTS, EVENTS_QOS)
         # The command has an executor of its own: what a lock-step exchange waits for.
         self._io = entry.SideExecutor(self)
         self._cmd = self._io.subscribe(Float64, 'solenoid_current_cmd',
@@ -93,8 +107,6 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         self._make_messages()
         self._started = time.monotonic()
         self._other_since: float | None = None
-        self._graph: int | None = None
-        self._graph_since = 0.0
         self._alone = threading.Event()
         self._alone_timer = self.create_timer(0.1, self._check_alone,
                                               clock=RosClock(clock_type=ClockType.STEADY_TIME))
@@ -220,14 +232,18 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
     def _matched(self, limit: float = 10.0) -> None:
         """Before running on, wait (at most ``limit`` s) until every measurement writer has
         ``wait_subscribers`` matched readers and every reader the graph shows (a recorder's
-        ~/ready sees only its side), and in lock-step the command's writer is matched (a
-        command sent before is lost, and the run would wait ``lock_step_timeout``)."""
+        ~/ready sees only its side), the events writer every reader the graph shows (an event
+        of the first instants reaches the bag), and in lock-step the command's writer is
+        matched (a command sent before is lost, and the run would wait
+        ``lock_step_timeout``)."""
         pubs = [self._pub_clock, self._pub_js, *self._pub_p.values(), *self._pub_f.values()]
         want = self.runner.cfg.wait_subscribers
         end = time.monotonic() + limit
         while True:
             short = {p.topic_name: (p.get_subscription_count(), max(
-                want, len(self.get_subscriptions_info_by_topic(p.topic_name)))) for p in pubs}
+                want if p is not self._pub_events else 0,
+                len(self.get_subscriptions_info_by_topic(p.topic_name))))
+                for p in (*pubs, self._pub_events)}
             if self.cfg.lock_step:
                 name = self._cmd.topic_name
                 # A lock-step run needs its controller: wait for one.
@@ -281,11 +297,6 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         if own in others:
             others.remove(own)
         if not others or self._closing:
-            graph = len(self.get_node_names_and_namespaces())
-            if graph != self._graph:
-                self._graph, self._graph_since = graph, now
-            if now >= self._graph_since + FIRST_LOOK:
-                self._alone.set()
             return
         # A writer is discovered before its node's name is: wait a little for the name.
         self._other_since = self._other_since or now
@@ -328,6 +339,10 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
     def current(self, t: float, value: float) -> None:
         self._m_float.data = value
         self._pub_i.publish(self._m_float)
+
+    def event(self, name: str, t: float, text: str) -> None:
+        self._pub_events.publish(event_message(EVENT_KINDS[name], seconds_to_ns(t), text,
+                                               'simulator'))
 
     def measurement(self, frame) -> None:
         ns = seconds_to_ns(frame.t)
