@@ -45,7 +45,11 @@ def test_topics_types_stamps_and_rate(nodes, test_node):
     test_node.create_subscription(Clock, '/clock', got['clock'].append, 2000)
     test_node.create_subscription(DiagnosticArray, '/diagnostics', got['diag'].append, 10)
     wait_for_publisher(test_node, 'joint_states')
-    spin_until(test_node, lambda: len(got['diag']) >= 2, 20, 'two diagnostics messages')
+    # The first step comes after the simulator's look for another one (DISCOVERY_WINDOW).
+    spin_until(test_node, lambda: len(got['joint_states']) > 200, 30, '0.2 s of steps')
+    n_diag = len(got['diag'])
+    spin_until(test_node, lambda: len(got['diag']) >= n_diag + 2, 20,
+               'two diagnostics messages of the run')
     types = dict(test_node.get_topic_names_and_types())
     assert types['/line_flow'] == ['std_msgs/msg/Float64']
     assert types['/solenoid_current'] == ['std_msgs/msg/Float64']
