@@ -17,9 +17,23 @@ On the same bags, from the same start (config/pump.yaml), in the same process:
   grid search at the start, no tricks; serial, BLAS on one thread as for the project.
 
 Goal: at least 2x faster in wall time, never less accurate (worst parameter error and
-held-out error). Medians of three runs each.
+held-out error). Medians of three runs each, each started once the cores have been idle for
+2 s (``bench_sweep.wait_idle``).
+
+**A fleet** (``calibrate --fleet``): four pumps, each 12-45 % from config/pump.yaml in its
+own way, each with the three bags above (its own noise), every pump one task of the
+execution layer (:mod:`hydropump_ctrl.batch`), the ways interleaved, each started once the
+cores have been idle for 2 s (``bench_sweep.wait_idle``), medians of five:
+
+- on a warm local Dask cluster of 2 workers against 1 (goal: >= 1.7x);
+- without a cluster (in a process with no Dask in it): one pump after the other, each with
+  its simulations on threads, and two pumps at once on threads;
+- one pump's calibration with its simulations as Dask tasks on the warm 2-worker cluster,
+  against threads of this process: where Dask's messages cost more than they gain.
 """
 
+from concurrent.futures import ProcessPoolExecutor
+import multiprocessing
 from pathlib import Path
 import statistics
 import sys
@@ -32,14 +46,18 @@ from scipy.optimize import least_squares
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(ROOT))
+from bench_sweep import wait_idle  # noqa: E402
+
+from hydropump_ctrl.batch import DaskExecutor, InProcess, open_client  # noqa: E402
 from hydropump_ctrl.ident import read_recordings  # noqa: E402
 from hydropump_ctrl.ident.calibrate import calibrate, params_with  # noqa: E402
+from hydropump_ctrl.ident.calibrate.fleet import calibrate_fleet  # noqa: E402
 from hydropump_ctrl.ident.fit import blas_single_threaded  # noqa: E402
 from hydropump_sim.params import load_params  # noqa: E402
 from hydropump_sim.simulate import simulate  # noqa: E402
 from tests import independent as ind  # noqa: E402
 
-from common import emit, row  # noqa: E402
+from common import emit, median_time, row  # noqa: E402
 
 FREE = ('actuator.mu_a', 'actuator.P_a_bar', 'line.V_l', 'line.mu_u')
 FACTORS = (1.3, 0.8, 1.45, 0.88)
@@ -48,9 +66,14 @@ CASES = {'flow and line pressure': ['line_flow', 'line_pressure'],
          'four bench sensors': ['line_flow', 'line_pressure', 'actuator_pressure']}
 
 
-def data(folder: Path):
+# The fleet's pumps: factors on config/pump.yaml's values of FREE.
+FLEET = {'pump_a': FACTORS, 'pump_b': (0.85, 1.15, 0.8, 1.12), 'pump_c': (1.12, 0.88, 1.25, 0.9),
+         'pump_d': (0.9, 1.1, 1.3, 1.1)}
+
+
+def data(folder: Path, factors=FACTORS, seed=7):
     base = load_params(ROOT / 'config' / 'pump.yaml')
-    truth = params_with(base, FREE, [base.flat()[n] * f for n, f in zip(FREE, FACTORS)])
+    truth = params_with(base, FREE, [base.flat()[n] * f for n, f in zip(FREE, factors)])
     lo, hi = truth.current_range
     stairs = ind.staircase([lo + x * (hi - lo) for x in (0.3, 0.45, 0.6, 0.4, 0.55, 0.7, 0.5)],
                            0.8)
@@ -60,7 +83,7 @@ def data(folder: Path):
                'load_steps': (np.full(steps.size, lo + 0.5 * (hi - lo)), steps)}
     paths = []
     for k, (name, (cur, load)) in enumerate(designs.items()):
-        rec = ind.measure(ind.run(truth, cur, load), ind.BENCH, seed=(7, k))
+        rec = ind.measure(ind.run(truth, cur, load), ind.BENCH, seed=(seed, k))
         paths.append(ind.write(folder / name, 1e-3, rec, truth.fluid.p_atm))
     t = np.arange(4000) * 1e-3
     held = ind.run(truth, lo + (hi - lo) * (0.5 + 0.25 * np.sin(
@@ -129,6 +152,103 @@ def held_out_error(params, run) -> tuple[float, float]:
             float(np.max(np.abs(res.P_l[:n] - run.signal('line_pressure', t)))) / 1e5)
 
 
+def warm(executor, fleet, base, signals) -> None:
+    """One short calibration a worker: the imports and the compiled code loaded."""
+    calibrate_fleet({f'warm{k}': recs[:1] for k, recs in enumerate(
+        list(fleet.values())[:executor.workers])}, base, FREE[:1], executor=executor,
+        signals=signals, max_nfev=2, multistart=False)
+
+
+def fleet_rows(base, repeat: int = 5) -> list[dict]:
+    signals = CASES['four bench sensors']
+    with tempfile.TemporaryDirectory() as tmp:
+        fleet, truths = {}, {}
+        for p, (name, factors) in enumerate(FLEET.items()):
+            _, truth, recs, _ = data(Path(tmp) / name, factors, seed=20 + p)
+            fleet[name], truths[name] = recs, truth.flat()
+    ways, start = {}, {}
+    for workers in (1, 2):
+        t0 = time.perf_counter()
+        client, cluster = open_client(None, workers)
+        ways[f'dask{workers}'] = DaskExecutor(client, cluster, own_client=True)
+        warm(ways[f'dask{workers}'], fleet, base, signals)
+        start[workers] = time.perf_counter() - t0
+    # Without a cluster, in a process of its own with no Dask in it (this one hosts the
+    # clusters' schedulers and nannies, whose threads would take its time): one pump after
+    # the other, each with its simulations on threads; or two pumps at once, each on a thread.
+    plain = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context('spawn'))
+    plain.submit(here, 1, {'w': fleet['pump_a'][:1]}, base, signals, FREE[:1]).result()
+    times: dict[str, list[float]] = {k: [] for k in (*ways, 'here1', 'here2')}
+    load = []
+    try:
+        # Interleaved, so that a change of the machine's load falls on every way alike.
+        for _ in range(repeat):
+            for name in times:
+                load.append(wait_idle())
+                if name.startswith('here'):
+                    dt, res = plain.submit(here, int(name[-1]), fleet, base, signals).result()
+                else:
+                    t0 = time.perf_counter()
+                    res = calibrate_fleet(fleet, base, FREE, executor=ways[name],
+                                          signals=signals)
+                    dt = time.perf_counter() - t0
+                times[name].append(dt)
+                worst = max(abs(e.value / truths[pr.name][e.name] - 1) for pr in res.pumps
+                            for e in pr.calibration.estimates)
+                assert worst < 0.02, (name, worst)
+        t_dask = one_pump(fleet['pump_a'], base, signals, ways['dask2'])
+    finally:
+        for ex in reversed(ways.values()):
+            ex.close()
+    t_threads = plain.submit(one_pump, fleet['pump_a'], base, signals).result()
+    plain.shutdown()
+    t = {k: statistics.median(v) for k, v in times.items()}
+    for k, v in times.items():
+        print(f'fleet of {len(fleet)}, {k}: ' + ', '.join(f'{x:.2f}' for x in v)
+              + f' s: median {t[k]:.2f} s')
+    print(f'start-up of a local cluster with a first calibration on each worker: '
+          f'{start[1]:.1f} s (1 worker), {start[2]:.1f} s (2)')
+    speedup = t['dask1'] / t['dask2']
+    best = min(t['here1'], t['here2'])
+    # A local cluster of 2 pays from n pumps where n p (1 - 1/s) > start, s its speed-up
+    # over this process's best way, p the time a pump takes here.
+    gain = 1.0 - t['dask2'] / best
+    cross = start[2] / (best / len(fleet) * gain) if gain > 0 else float('inf')
+    note = (f'{len(fleet)} pumps x 3 bags (17 s of data each), four bench sensors; medians '
+            f'of {repeat}, interleaved, each started on cores {100 * min(load):.0f}-'
+            f'{100 * max(load):.0f} % idle')
+    return [
+        row('calibrate fleet: speed-up, 2 Dask workers vs 1', speedup, 'x', '>= 1.7',
+            speedup >= 1.7, note + f'; 1 worker {t["dask1"]:.2f} s'),
+        row('calibrate fleet: 2 Dask workers vs no cluster (its best way)', best / t['dask2'],
+            'x', '', None, f'no cluster: one pump after the other {t["here1"]:.2f} s, two '
+            f'at once on threads {t["here2"]:.2f} s'),
+        row('calibrate fleet: local cluster start-up (2 workers, warm)', start[2], 's', '',
+            None, 'cluster start and a first calibration on each worker'),
+        row('calibrate fleet: crossover, pumps from which a local cluster pays', cross,
+            'pumps', '', None, 'start-up / (time a pump here x (1 - cluster / here))'),
+        row('calibrate one pump: simulations as Dask tasks (2 workers) vs threads',
+            t_threads / t_dask, 'x', '', None,
+            f'threads {t_threads:.2f} s, Dask {t_dask:.2f} s (below 1: the messages cost '
+            'more than the tasks gain)'),
+    ]
+
+
+def here(threads, fleet, base, signals, free=FREE):
+    """The fleet in this process on ``threads`` threads: its wall time and result."""
+    t0 = time.perf_counter()
+    res = calibrate_fleet(fleet, base, free, executor=InProcess(threads), signals=signals)
+    return time.perf_counter() - t0, res
+
+
+def one_pump(recs, base, signals, executor=None) -> float:
+    """Median time of one pump's calibration on ``executor`` (default threads), warm."""
+    def fit():
+        calibrate(recs, base, FREE, signals=signals, executor=executor)
+    fit()
+    return median_time(fit, 3)[0]
+
+
 def main() -> int:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -138,9 +258,13 @@ def main() -> int:
     for case, signals in CASES.items():
         t_ours, t_naive = [], []
         for _ in range(3):
+            # Each started on idle cores: the project's threads would take another's load
+            # more than the serial naive fit.
+            wait_idle()
             t0 = time.perf_counter()
             cal = calibrate(recs, base, FREE, signals=signals)
             t_ours.append(time.perf_counter() - t0)
+            wait_idle()
             t0 = time.perf_counter()
             vals, delay = naive(base, recs, signals)
             t_naive.append(time.perf_counter() - t0)
@@ -176,6 +300,7 @@ def main() -> int:
                 abs(cal.delays['all']['line_flow'] - 0.0124) <= 2e-4,
                 f'naive {abs(1e3 * delay - 12.4):.2f} ms'),
         ]
+    rows += fleet_rows(base)
     emit(rows)
     return 0
 

@@ -27,6 +27,12 @@ def bag(tmp_path_factory):
     return path
 
 
+def _copy(src, folder):
+    out = folder / src.name
+    out.write_text(src.read_text())
+    return out
+
+
 def _run(capsys, *args):
     code = main(list(args))
     err = capsys.readouterr().err
@@ -40,14 +46,23 @@ def _run(capsys, *args):
     (lambda tmp, bag: ['--report', str(bag)], 'it is one of the inputs'),
     (lambda tmp, bag: ['--prior', 'line.V_l=5e-4'], '--prior line.V_l=5e-4: expected'),
     (lambda tmp, bag: ['--prior', 'line.V_l=5e-4+-10%'], 'not a free parameter'),
+    # An existing file of another kind is never replaced by a params file.
+    (lambda tmp, bag: ['--out', str(_copy(ROOT / 'config' / 'controller.yaml', tmp))],
+     'holds controller params, not plant params'),
+    (lambda tmp, bag: ['--out', str(_copy(ROOT / 'config' / 'bench.yaml', tmp))],
+     'not plant params'),
+    (lambda tmp, bag: ['--workers', '0'], '--workers 0: expected a whole number from 1'),
+    (lambda tmp, bag: ['--in-process', '--scheduler', 'tcp://127.0.0.1:9'], 'choose one'),
+    (lambda tmp, bag: ['--fleet', str(tmp)], 'not both'),
 ])
 def test_bad_calibrate_options_get_one_line_and_nothing_is_written(bag, tmp_path, capsys,
                                                                   make, text):
     start = tmp_path / 'start.yaml'
     start.write_text((ROOT / 'config' / 'pump.yaml').read_text())
-    before = {p: p.read_bytes() for p in [start, *bag.iterdir()]}
+    extra = make(tmp_path, bag)
+    before = {p: p.read_bytes() for p in [*tmp_path.iterdir(), *bag.iterdir()] if p.is_file()}
     code, err = _run(capsys, 'calibrate', str(bag), '--free', 'line.mu_u',
-                     '--report', str(tmp_path / 'rep'), *make(tmp_path, bag))
+                     '--report', str(tmp_path / 'rep'), *extra)
     assert code == 2 and err.startswith('error: ') and text in err, err
     assert len(err.strip().splitlines()) == 1
     assert {p: p.read_bytes() for p in before} == before   # nothing over an input

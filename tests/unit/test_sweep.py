@@ -147,12 +147,36 @@ def test_same_seed_same_table_on_a_local_cluster_and_on_a_separate_scheduler(cli
         for proc in (worker, sched):
             if proc is not None:
                 _stop(proc)
+    # And in this process, no Dask at all.
+    here = run_sweep(spec(**doc), tmp_path / 'here', workers=0, progress=False, report=False)
+    assert here.where == 'this process'
     a = read_table(tmp_path / 'local' / 'runs.parquet')
-    b = read_table(tmp_path / 'remote' / 'runs.parquet')
     assert list(a['status']) == ['ok'] * 6
-    for name in a:
-        if name not in ('wall_s', '__units__'):    # wall time is the only one that may differ
-            np.testing.assert_array_equal(a[name], b[name], err_msg=name)
+    for other in ('remote', 'here'):
+        b = read_table(tmp_path / other / 'runs.parquet')
+        for name in a:
+            if name not in ('wall_s', '__units__'):    # wall time is the only one that differs
+                np.testing.assert_array_equal(a[name], b[name], err_msg=f'{other}: {name}')
+
+
+def test_a_sweep_too_short_for_a_cluster_stays_in_this_process_and_resumes(tmp_path,
+                                                                          monkeypatch):
+    """Four runs of 1.5 s of simulated time take well under a second each: a local cluster
+    could not win back its start-up, so the sweep runs here; the first two runs (the probe)
+    count among those executed, and a resumed sweep probes nothing."""
+    monkeypatch.delenv('DASK_SCHEDULER_ADDRESS', raising=False)
+    sw = spec(grid={'relative': True, 'parameters': {'actuator.mu_a': [0.9, 0.95, 1.0, 1.1]}},
+              outputs=[{'final': 'q_l'}])
+    res = run_sweep(sw, tmp_path, progress=False, report=False)
+    assert res.where == 'this process'
+    assert (res.executed, res.reused, res.failed) == (4, 0, 0)
+    (tmp_path / 'runs' / '000003.json').unlink()
+    again = run_sweep(sw, tmp_path, progress=False, report=False)
+    assert (again.executed, again.reused) == (1, 3)
+    from hydropump_sim import load_params
+    q = read_table(tmp_path / 'runs.parquet')['final_q_l']
+    # Steady flow at 60 % displacement whatever the orifice: 0.6 V_p f_p.
+    assert q == pytest.approx(0.6 * load_params(CONFIG / 'pump.yaml').Q_max, rel=0.01)
 
 
 def _cli(capsys, *argv):
@@ -255,3 +279,41 @@ def test_a_full_disk_ends_with_one_line_and_keeps_the_runs_stored(tmp_path, caps
     assert 'Traceback' not in '\n'.join(err)
     stored = list((tmp_path / 'out' / 'runs').glob('*.json'))
     assert len(stored) == 1 and stored[0].read_text().startswith('{')
+
+
+def test_morris_screening_by_salib_matches_eq_14(tmp_path):
+    """Morris trajectories of mu_a and V_l: r (D + 1) runs; the elementary effects of tau
+    follow eq. 14 (tau = tau_0 mu_a0 / mu_a, no V_l), computed here from the sampled inputs
+    alone, and V_l screens out."""
+    r = 4
+    sw = spec(morris={'r': r, 'levels': 4, 'seed': 2, 'relative': True,
+                      'bounds': {'actuator.mu_a': [0.85, 1.15], 'line.V_l': [0.7, 1.3]}})
+    assert sw.n_runs == r * (2 + 1)
+    run_sweep(sw, tmp_path, workers=0, progress=False, report=True)
+    cols = read_table(tmp_path / 'runs.parquet')
+    assert set(cols['status']) == {'ok'}
+    s = sensitivities(sw, cols)['fopdt_tau']
+    mu0 = sw.plant.actuator.mu_a
+    (lo, hi), _ = sw.problem['bounds']
+    effects = []
+    for t in range(r):
+        x = sw.samples[3 * t:3 * t + 3]
+        for a, b in zip(x[:-1], x[1:]):
+            if a[0] != b[0]:                      # this step moved mu_a
+                tau = [0.100 * mu0 / v for v in (a[0], b[0])]   # eq. 14 at the design point
+                effects.append(abs((tau[1] - tau[0]) / ((b[0] - a[0]) / (hi - lo))))
+    assert len(effects) == r
+    assert s['mu_star']['actuator.mu_a'] == pytest.approx(np.mean(effects), rel=0.05)
+    assert s['mu_star']['line.V_l'] < 0.05 * s['mu_star']['actuator.mu_a']
+    html = (tmp_path / 'report.html').read_text()
+    assert 'Morris' in html and html.count('data:image/png') >= 4
+
+
+def test_bad_morris_blocks_are_refused_in_one_line_each():
+    from hydropump_ctrl.sweep import SweepError
+    with pytest.raises(SweepError) as exc:
+        spec(morris={'r': 0, 'levels': 3, 'bounds': {'line.V_l': [1e-4, 2e-4]}, 'steps': 2})
+    lines = exc.value.lines
+    assert any('morris.r = 0: zero samples' in ln for ln in lines), lines
+    assert any('morris.levels = 3: expected an even whole number' in ln for ln in lines)
+    assert any('unknown key(s) steps' in ln for ln in lines)

@@ -9,16 +9,29 @@ and the fit percentage per signal of a params file on bags it was not fitted to,
 overlays of the measured signals, the params file's prediction and, with ``--before``, another
 file's.
 
+``calibrate --fleet FOLDER`` calibrates many pumps: FOLDER holds one folder per pump, each
+with its bags; every pump is one task (on a cluster's workers with ``--scheduler ADDRESS``,
+a local Dask cluster with ``--workers N``, this process with ``--in-process``; by default
+the first pump here, timed, and the rest on a local cluster only if that is sooner), and one
+table of every pump's parameters and standard errors is written (``fleet.csv``,
+``fleet.parquet``, ``fleet.md``) beside a folder per pump (its params file and report).
+A single calibration takes ``--scheduler`` and ``--workers`` too: its simulations and
+sensitivity columns become Dask tasks (by default they run on threads of this process).
+
 Both check every bag against the params file before any simulation (a current in mA, a
 pressure in bar or gauge, a flow in L/min, the wrong message type, two runs in one bag, too
-few samples: one ``error:`` line each, exit code 2). A calibration that fits a signal worse
-than its mean (fit % below zero) writes its report but no params file, and exits with 2.
+few samples: one ``error:`` line each, exit code 2); a fleet checks every bag of every pump
+first, and an unwritable report folder or a scheduler that does not answer within 5 s ends
+in one line before any calibration. A calibration that fits a signal worse than its mean (fit
+% below zero) writes its report but no params file, and exits with 2; in a fleet that pump
+is a failed row, and the command exits with 1 when any pump failed.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 from pathlib import Path
 import re
 import sys
@@ -27,6 +40,7 @@ import time
 from ._common import (
     add_params_option,
     add_progress_option,
+    int_in,
     output_file,
     plant_file,
     protect_output,
@@ -48,17 +62,18 @@ def _progress_printer(enabled: bool | None):
     return show
 
 
-def _read(args, params):
-    """The bags, each checked against the pump of ``params`` on the signals the model takes
-    (its inputs and the compared outputs)."""
+def _read(args, params, bags=None):
+    """The bags (default: the command's), each checked against the pump of ``params`` on the
+    signals the model takes (its inputs and the compared outputs)."""
     from hydropump_sim.measure import CURRENT_SIGNAL, LOAD_PRESSURE_SIGNAL
 
     from ..ident import read_recordings
     from ..ident.calibrate.data import COMMAND_SIGNAL
     check = None if args.signals is None else [CURRENT_SIGNAL, COMMAND_SIGNAL,
                                                LOAD_PRESSURE_SIGNAL, *args.signals]
-    return read_recordings(args.bags, allow_truncated=args.allow_truncated,
-                           progress=args.progress, params=params, check=check)
+    return read_recordings(args.bags if bags is None else bags,
+                           allow_truncated=args.allow_truncated, progress=args.progress,
+                           params=params, check=check)
 
 
 def _negative_fits(fit: dict) -> list[tuple[str, str, float]]:
@@ -67,9 +82,9 @@ def _negative_fits(fit: dict) -> list[tuple[str, str, float]]:
                   key=lambda x: x[2])
 
 
-def _common(p) -> None:
+def _common(p, bags: str = '+') -> None:
     from hydropump_sim.measure import BENCH_OUTPUT_SIGNALS, OUTPUT_SIGNALS
-    p.add_argument('bags', nargs='+', metavar='BAG',
+    p.add_argument('bags', nargs=bags, metavar='BAG',
                    help='bag directory, .mcap or .db3 file, or a saved .npz recording')
     p.add_argument('--profile', metavar='FILE',
                    help='sensor profile the bags were recorded with (e.g. config/bench.yaml): '
@@ -93,7 +108,7 @@ def register(sub) -> None:
                        '(grey box) and write a calibrated params file',
                        description=__doc__.splitlines()[0],
                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    _common(c)
+    _common(c, '*')
     add_params_option(c, 'to start from')
     c.add_argument('--free', nargs='+', metavar='NAME', required=True,
                    help='plant parameters to fit, dotted as in config/pump.yaml (e.g. '
@@ -111,6 +126,21 @@ def register(sub) -> None:
     c.add_argument('--no-multistart', action='store_true',
                    help='one start only (by default two more when the first does not reach '
                         'the noise level)')
+    c.add_argument('--fleet', metavar='FOLDER',
+                   help='calibrate many pumps: FOLDER holds one folder per pump with its bags '
+                        '(instead of BAG...); writes fleet.csv, fleet.parquet, fleet.md and a '
+                        'folder per pump into --report')
+    c.add_argument('--scheduler', metavar='ADDRESS',
+                   help='run on this Dask scheduler, e.g. tcp://host:8786 (default: '
+                        '$DASK_SCHEDULER_ADDRESS, else this process)')
+    where = c.add_mutually_exclusive_group()
+    where.add_argument('--workers', type=int_in(1, 1024),
+                       help='worker processes of a local Dask cluster (default: this process, '
+                            'its simulations on threads; a fleet: the first pump here, timed, '
+                            'the rest on a local cluster if that is sooner, start-up '
+                            'included)')
+    where.add_argument('--in-process', action='store_true',
+                       help='this process alone, no Dask (a fleet: one pump after the other)')
     c.set_defaults(func=cmd_calibrate)
     v = sub.add_parser('validate', help='residual and fit %% of a params file on bags it was '
                        'not fitted to', description=__doc__.splitlines()[0],
@@ -149,7 +179,30 @@ def _priors(args):
     return out
 
 
+def _executor(args):
+    """Where the work goes: the scheduler of ``--scheduler`` (or $DASK_SCHEDULER_ADDRESS), a
+    local cluster of ``--workers`` processes, this process with ``--in-process``; else None:
+    the library's default (one calibration: threads of this process; a fleet: its first
+    pump here, timed, then the rest here or on a local cluster, whichever is sooner)."""
+    from ..batch import InProcess, open_executor
+    if args.in_process and args.scheduler:
+        raise UsageError(f'--in-process and --scheduler {args.scheduler}: choose one')
+    if args.in_process:
+        return InProcess()
+    if args.scheduler or os.environ.get('DASK_SCHEDULER_ADDRESS') or args.workers:
+        return open_executor(args.scheduler, args.workers)
+    return None
+
+
 def cmd_calibrate(args) -> int:
+    if args.fleet:
+        return _fleet(args)
+    if not args.bags:
+        raise UsageError('calibrate: give the bags (BAG ...) or a fleet folder (--fleet FOLDER)')
+    return _single(args)
+
+
+def _single(args) -> int:
     from ..ident.calibrate import (
         calibrate,
         CalibrationError,
@@ -168,13 +221,18 @@ def cmd_calibrate(args) -> int:
         protect_output(args.report, inputs, 'report folder')
     report = run_dir(args.report, 'calibrate')
     out = output_file(Path(args.out) if args.out else report / 'calibrated.yaml',
-                      PARAMS_SUFFIXES, 'params file')
+                      PARAMS_SUFFIXES, 'params file', kind='plant params')
     base = _plant(plant, args.profile)
     recs = _read(args, base)
     show = _progress_printer(args.progress)
-    cal = calibrate(recs, base, args.free, offsets=args.offset, fit_delays=not args.no_delays,
-                    signals=args.signals, priors=priors, multistart=not args.no_multistart,
-                    progress=show)
+    ex = _executor(args)
+    try:
+        cal = calibrate(recs, base, args.free, offsets=args.offset,
+                        fit_delays=not args.no_delays, signals=args.signals, priors=priors,
+                        multistart=not args.no_multistart, progress=show, executor=ex)
+    finally:
+        if ex is not None:
+            ex.close()
     if show:
         print(file=sys.stderr)
     suggest(cal)
@@ -208,6 +266,101 @@ def cmd_calibrate(args) -> int:
         print(f'warning: {f}', file=sys.stderr)
     print(f'\nwrote {out} and {report}/report.md')
     return 0
+
+
+def _fleet(args) -> int:
+    """``calibrate --fleet FOLDER``: every pump of the folder, one task each (see the
+    module)."""
+    from ..ident.calibrate import (
+        CalibrationError,
+        check_free,
+        write_calibration_report,
+        write_params,
+    )
+    from ..ident.calibrate.fleet import (
+        calibrate_fleet,
+        find_pumps,
+        fleet_markdown,
+        read_fleet,
+        write_fleet_table,
+    )
+    from ..ident.design import suggest
+    if args.bags:
+        raise UsageError(f'calibrate: give the bags ({" ".join(args.bags)}) or --fleet '
+                         f'{args.fleet}, not both')
+    if args.out:
+        raise UsageError(f'--out {args.out}: a fleet writes one params file per pump, into '
+                         '--report FOLDER/<pump>/calibrated.yaml; give --report instead')
+    priors = _priors(args)
+    plant = plant_file(args)
+    pumps = find_pumps(args.fleet)
+    inputs = [plant, args.fleet] + ([args.profile] if args.profile else [])
+    if args.report:
+        protect_output(args.report, inputs, 'report folder')
+    report = run_dir(args.report, 'calibrate-fleet')
+    # Checked now, each pump's folder made when its result arrives.
+    outs = {name: output_file(report / name / 'calibrated.yaml', PARAMS_SUFFIXES,
+                              f'params file of {name}', create=False, kind='plant params')
+            for name in pumps}
+    base = _plant(plant, args.profile)
+    errors = check_free(base, args.free)
+    if errors:
+        raise CalibrationError(errors)
+    recs = read_fleet(pumps, lambda bags: _read(args, base, bags))
+    header = [f'start: {plant}'] + ([f'layered with the plant settings of {args.profile}']
+                                    if args.profile else [])
+    done = []
+
+    def store(res):
+        # As each pump's result arrives: its params file (not when it fits a signal worse
+        # than its mean) and its report.
+        cal = res.calibration
+        if cal is not None:
+            suggest(cal)
+            bad = _negative_fits(cal.fit)
+            folder = outs[res.name].parent
+            try:
+                folder.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise UsageError(f'cannot create the folder of {res.name} {folder}: '
+                                 f'{exc.strerror or exc}') from None
+            if bad:
+                e, s, v = bad[0]
+                res.reason = (f'fits {len(bad)} signal(s) worse than their mean (worst {s} of '
+                              f'{e}: {v:.4g} %): no params file written')
+            else:
+                res.files.append(write_params(cal, outs[res.name], [
+                    *header, f'pump {res.name} of the fleet {args.fleet}']))
+            write_calibration_report(cal, folder, plots=not args.no_plots)
+            res.files.append(folder / 'report.md')
+        done.append(res.name)
+        if args.progress is not False:
+            print(f'fleet: {res.name} {res.status} ({len(done)}/{len(pumps)}, '
+                  f'{res.wall_s:.1f} s){": " + res.reason if res.reason else ""}',
+                  file=sys.stderr, flush=True)
+
+    ex = _executor(args)
+    try:
+        result = calibrate_fleet(recs, base, args.free, executor=ex, on_result=store,
+                                 offsets=args.offset, fit_delays=not args.no_delays,
+                                 signals=args.signals, priors=priors,
+                                 multistart=not args.no_multistart)
+    finally:
+        if ex is not None:
+            ex.close()
+    paths = write_fleet_table(result, report)
+    if args.json:
+        print(json.dumps({p.name: p.calibration.to_dict() if p.status == 'ok'
+                          else {'status': p.status, 'reason': p.reason}
+                          for p in result.pumps}, indent=2))
+    else:
+        print(fleet_markdown(result))
+        print(f'wrote {paths["md"]}, {paths["csv"].name} and {paths["parquet"].name}, and a '
+              f'folder per pump in {report}')
+    for p in result.pumps:
+        if p.status != 'ok':
+            print(f'warning: {p.name}: {p.reason}', file=sys.stderr)
+    return 1 if result.failed else 0
 
 
 def _start_of(path: Path) -> Path | None:

@@ -1,7 +1,9 @@
 """``hydropump sweep SPEC.yaml``: a parameter sweep or tolerance study on Dask distributed.
 
 Runs the plant once per sample of the spec's parameters (grid, Latin hypercube, normal or
-uniform tolerances, Sobol), on a local cluster or an existing scheduler, and writes
+uniform tolerances, Sobol, Morris), in this process, on a local cluster or on an existing
+scheduler (a small sweep stays in this process: a cluster would not pay for its start), and
+writes
 ``runs.parquet`` and ``report.html`` (histograms, tornado of sensitivities, worst runs) to
 ``--out``. Finished runs are kept there: the same command again runs only what is missing.
 A bad spec, an unwritable ``--out`` or an unreachable scheduler ends with ``error:`` lines and
@@ -26,10 +28,15 @@ def register(subparsers) -> None:
     p.add_argument('--scheduler', metavar='ADDRESS',
                    help='Dask scheduler, e.g. tcp://host:8786 (default: $DASK_SCHEDULER_ADDRESS,'
                         ' else a local cluster)')
-    p.add_argument('--workers', type=int_in(1, 1024),
-                   help='worker processes of the local cluster (default: one per core)')
+    where = p.add_mutually_exclusive_group()
+    where.add_argument('--workers', type=int_in(1, 1024),
+                       help='worker processes of a local cluster (default: this process for a '
+                            'sweep too short to pay for a cluster, else one worker per core)')
+    where.add_argument('--in-process', action='store_true',
+                       help='every run in this process, no Dask at all')
     p.add_argument('--batch', type=int_in(1, 10000),
-                   help='runs per Dask task (default: 4+ tasks per worker, at most 8 runs)')
+                   help='runs per Dask task (default: an eighth of what is left per worker, '
+                        'at most 16, down to single runs at the end)')
     p.add_argument('--out', help='output folder (default: out/sweep-<time>); reuse it to '
                                  'resume')
     p.add_argument('--no-report', action='store_true', help='write the table only')
@@ -39,22 +46,28 @@ def register(subparsers) -> None:
 
 def cmd_sweep(args) -> int:
     """Run the ``sweep`` sub-command; user errors propagate as one-line exceptions."""
+    from hydropump_sim.files import WriteError
+
     from ..sweep import load_sweep, run_sweep
     from ..sweep.engine import prepare_out
 
+    if args.in_process and args.scheduler:
+        raise UsageError(f'--in-process and --scheduler {args.scheduler}: choose one')
     sweep = load_sweep(args.spec)           # every spec problem before any work
     out = prepare_out(args.out or run_dir(None, 'sweep'), sweep)
     try:
-        res = run_sweep(sweep, out, address=args.scheduler, workers=args.workers,
+        res = run_sweep(sweep, out, address=args.scheduler,
+                        workers=0 if args.in_process else args.workers,
                         batch=args.batch, progress=args.progress,
                         report=not args.no_report)
-    except OSError as exc:
+    except (OSError, WriteError) as exc:
         # A full disk, say: every run stored before is whole (each is renamed into place),
         # and the same command resumes from them.
-        raise UsageError(f'{out}: cannot write ({exc.strerror or exc}); the runs finished '
-                         'before are kept there, and the same command resumes') from None
-    print(f'sweep: {sweep.n_runs} runs, {res.executed} executed now, {res.reused} from '
-          f'earlier, {res.failed} failed', file=sys.stderr)
+        why = exc.lines[0] if isinstance(exc, WriteError) else exc.strerror or exc
+        raise UsageError(f'{out}: cannot write ({why}); the runs finished before are kept '
+                         'there, and the same command resumes') from None
+    print(f'sweep: {sweep.n_runs} runs, {res.executed} executed now ({res.where}), '
+          f'{res.reused} from earlier, {res.failed} failed', file=sys.stderr)
     print(res.table)
     if res.report:
         print(res.report)

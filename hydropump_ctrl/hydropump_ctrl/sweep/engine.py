@@ -1,10 +1,17 @@
-"""Running a sweep on Dask distributed, with one small file per finished run for resuming.
+"""Running a sweep on the suite's execution layer, with one small file per finished run for
+resuming.
 
-Without a scheduler address (argument or ``DASK_SCHEDULER_ADDRESS``) a
-:class:`~dask.distributed.LocalCluster` runs in this process: ``workers`` worker processes of
-one thread each (the simulation is single-threaded numba; threads would share the GIL's
-Python parts). With an address the runs go to that scheduler's workers, which need this
-project installed in the same version.
+Where the runs go (:mod:`hydropump_ctrl.batch`): to the scheduler at an address (argument or
+``DASK_SCHEDULER_ADDRESS``), whose workers need this project installed in the same version;
+to a :class:`~dask.distributed.LocalCluster` of ``workers`` processes of one thread each
+(the run is single-threaded numba and Python, and threads would share the GIL's Python
+parts); or to a plain loop in this process (``workers=0``). Without either, the first runs
+are made in this process and timed, and the rest go to a local cluster only when it would
+finish them sooner, its start-up included (:func:`hydropump_ctrl.batch.cluster_pays`).
+
+Runs are grouped into tasks of several runs, the largest first and single runs at the end
+(guided self-scheduling): few messages while there is much to do, and no worker left with a
+long task when the others are done.
 
 The output folder holds ``sweep.json`` (the sweep's fingerprint), ``runs/<id>.json`` (one
 per finished run, written by this process as results arrive, never by the workers, which may
@@ -17,7 +24,6 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 import json
-import logging
 import math
 import os
 from pathlib import Path
@@ -25,16 +31,33 @@ import sys
 
 import numpy as np
 
+from hydropump_sim import files
+
+from ..batch import (
+    cluster_pays,
+    cores,
+    DaskExecutor,
+    Executor,
+    InProcess,
+    open_client,
+    open_executor,
+)
 from .runs import run_batch, STATUS_FAILED
 from .spec import followers, Sweep, SweepError
 
-#: Seconds to wait for a scheduler before giving up.
-CONNECT_TIMEOUT = 5.0
+__all__ = ['SweepResult', 'execute', 'open_client', 'prepare_out', 'run_sweep']
+
+#: Runs timed in this process before a sweep without a worker count chooses where the rest
+#: go (the first pays for the imports, the second is timed).
+PROBE_RUNS = 2
+#: Most runs in one task: a lost worker costs little, and progress shows.
+MAX_BATCH = 16
 
 
 @dataclass
 class SweepResult:
-    """What a sweep did: runs executed now, runs taken from an earlier call, failures."""
+    """What a sweep did: runs executed now, runs taken from an earlier call, failures, and
+    where the runs went."""
 
     out: Path
     executed: int
@@ -42,31 +65,7 @@ class SweepResult:
     failed: int
     table: Path
     report: Path | None = None
-
-
-def open_client(address: str | None = None, workers: int | None = None):
-    """A Dask client: to ``address`` (or ``DASK_SCHEDULER_ADDRESS``), else to a new local
-    cluster of ``workers`` processes (default one per core). Returns ``(client, cluster)``;
-    ``cluster`` is None for an external scheduler.
-
-    Raises
-    ------
-    SweepError
-        The scheduler cannot be reached within :data:`CONNECT_TIMEOUT`.
-    """
-    from dask.distributed import Client, LocalCluster
-    address = address or os.environ.get('DASK_SCHEDULER_ADDRESS') or None
-    if address:
-        try:
-            return Client(address, timeout=CONNECT_TIMEOUT, set_as_default=False), None
-        except Exception as exc:  # noqa: BLE001 - OSError, TimeoutError, ValueError (address)
-            why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            raise SweepError(f'cannot reach the Dask scheduler at {address} within '
-                             f'{CONNECT_TIMEOUT:g} s ({why})') from None
-    workers = workers or os.cpu_count() or 1
-    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                           dashboard_address=None, silence_logs=logging.ERROR)
-    return Client(cluster, set_as_default=False), cluster
+    where: str = ''
 
 
 def prepare_out(out: str | Path, sweep: Sweep) -> Path:
@@ -74,11 +73,12 @@ def prepare_out(out: str | Path, sweep: Sweep) -> Path:
     out = Path(out)
     try:
         (out / 'runs').mkdir(parents=True, exist_ok=True)
-        probe = out / '.write-test'
-        probe.write_text('')
+        probe = files.write_text(out / '.write-test', '', 'probe file')
         probe.unlink()
     except OSError as exc:
         raise SweepError(f'--out {out}: cannot write there ({exc.strerror or exc})') from None
+    except files.WriteError as exc:
+        raise SweepError(f'--out {out}: cannot write there ({exc.lines[0]})') from None
     meta = out / 'sweep.json'
     fp = sweep.fingerprint()
     if meta.exists():
@@ -90,9 +90,9 @@ def prepare_out(out: str | Path, sweep: Sweep) -> Path:
             raise SweepError(f'--out {out}: holds the runs of another sweep (spec, plant or '
                              'samples differ): give another folder')
     else:
-        meta.write_text(json.dumps({'fingerprint': fp, 'source': sweep.source,
-                                    'method': sweep.method, 'names': sweep.names,
-                                    'runs': sweep.n_runs}, indent=1))
+        files.write_text(meta, json.dumps({'fingerprint': fp, 'source': sweep.source,
+                                           'method': sweep.method, 'names': sweep.names,
+                                           'runs': sweep.n_runs}, indent=1), 'sweep file')
     return out
 
 
@@ -109,10 +109,8 @@ def done_runs(out: Path) -> dict[int, dict]:
 
 
 def _store(out: Path, row: dict) -> None:
-    path = out / 'runs' / f'{row["run_id"]:06d}.json'
-    tmp = path.with_suffix('.tmp')
-    tmp.write_text(json.dumps(row))
-    tmp.replace(path)   # atomic: a crash leaves no half-written run
+    # Renamed into place: a crash leaves no half-written run.
+    files.write_text(out / 'runs' / f'{row["run_id"]:06d}.json', json.dumps(row), 'run')
 
 
 def context(sweep: Sweep) -> dict:
@@ -123,12 +121,16 @@ def context(sweep: Sweep) -> dict:
 
 
 def batches(ids: list[int], samples: np.ndarray, n_workers: int, batch: int | None):
-    """Runs grouped into tasks: ``batch`` runs each (default: at least 4 tasks per worker so
-    that the load balances, at most 8 runs per task so that a lost worker costs little)."""
-    if batch is None:
-        batch = max(1, min(8, len(ids) // max(4 * n_workers, 1)))
-    return [[(i, samples[i].tolist()) for i in ids[k:k + batch]]
-            for k in range(0, len(ids), batch)]
+    """Runs grouped into tasks: ``batch`` runs each, or by default guided: a task takes an
+    eighth of what is left per worker (at most :data:`MAX_BATCH`), so that the tasks shrink
+    to single runs towards the end."""
+    out, k = [], 0
+    while k < len(ids):
+        left = len(ids) - k
+        size = batch or max(1, min(MAX_BATCH, left // (8 * max(n_workers, 1))))
+        out.append([(i, samples[i].tolist()) for i in ids[k:k + size]])
+        k += size
+    return out
 
 
 class _Progress:
@@ -160,36 +162,37 @@ class _Progress:
             self.bar.close()
 
 
-def execute(sweep: Sweep, out: Path, client, *, batch: int | None = None,
-            progress: bool | None = None,
+def _executor(client_or_executor) -> Executor:
+    if isinstance(client_or_executor, Executor):
+        return client_or_executor
+    return DaskExecutor(client_or_executor)     # a Dask client the caller owns
+
+
+def execute(sweep: Sweep, out: Path, executor, *, batch: int | None = None,
+            progress: bool | None = None, limit: int | None = None,
             on_result: Callable[[dict], None] | None = None) -> tuple[int, int]:
-    """Run what ``out`` lacks on ``client``'s workers; ``(executed, reused)``."""
-    from dask.distributed import as_completed
+    """Run what ``out`` lacks (at most ``limit`` runs) on ``executor`` (an
+    :class:`~hydropump_ctrl.batch.Executor` or a Dask client); ``(executed, reused)``."""
+    ex = _executor(executor)
     done = done_runs(out)
-    todo = [i for i in range(sweep.n_runs) if i not in done]
+    todo = [i for i in range(sweep.n_runs) if i not in done][:limit]
     if not todo:
         return 0, len(done)
-    n_workers = max(len(client.scheduler_info(n_workers=-1).get('workers', {})), 1) \
-        if hasattr(client, 'scheduler_info') else 1
-    ctx = client.scatter(context(sweep), broadcast=True)
-    groups = batches(todo, sweep.samples, n_workers, batch)
-    futures = client.map(run_batch, groups, ctx=ctx, pure=False,
-                         retries=2)  # a worker lost twice on a task is not a run's fault
-    owner = {f.key: g for f, g in zip(futures, groups)}
+    groups = batches(todo, sweep.samples, ex.workers,
+                     1 if isinstance(ex, InProcess) and batch is None else batch)
+    ctx = ex.share(context(sweep))
     bar = _Progress(sweep.n_runs, len(done), progress)
     try:
-        for fut in as_completed(futures, loop=client.loop):
-            try:
-                rows = fut.result()
-            except Exception as exc:  # noqa: BLE001 - e.g. KilledWorker: recorded per run
+        # A worker lost twice on a task is not a run's fault: retries.
+        for k, rows in ex.stream(run_batch, groups, retries=2, ctx=ctx):
+            if isinstance(rows, BaseException):   # e.g. KilledWorker: recorded per run
                 rows = [{'run_id': i, 'status': STATUS_FAILED, 'wall_s': math.nan,
-                         'reason': f'{type(exc).__name__}: {exc}'} for i, _ in owner[fut.key]]
+                         'reason': f'{type(rows).__name__}: {rows}'} for i, _ in groups[k]]
             for r in rows:
                 _store(out, r)
                 if on_result is not None:
                     on_result(r)
             bar.update(rows)
-            fut.release()
     finally:
         bar.close()
     return len(todo), len(done)
@@ -215,7 +218,8 @@ def write_table(sweep: Sweep, out: Path) -> Path:
     table = pa.table(cols).replace_schema_metadata(
         {'units': json.dumps(units), 'method': sweep.method, 'source': sweep.source})
     path = out / 'runs.parquet'
-    pq.write_table(table, path)
+    with files.replacing(path, 'table') as tmp:
+        pq.write_table(table, tmp)
     return path
 
 
@@ -226,24 +230,35 @@ def _unit(name: str) -> str:
 
 
 def run_sweep(sweep: Sweep, out: str | Path, *, address: str | None = None,
-              workers: int | None = None, client=None, batch: int | None = None,
-              progress: bool | None = None, report: bool = True) -> SweepResult:
+              workers: int | None = None, client=None, executor: Executor | None = None,
+              batch: int | None = None, progress: bool | None = None,
+              report: bool = True) -> SweepResult:
     """Run ``sweep`` into ``out`` (resuming what is there), write the table and the report.
 
-    ``client``: an open Dask client to use (else one is opened, see :func:`open_client`).
+    Where the runs go: ``executor`` or ``client`` (an open Dask client), else see
+    :func:`hydropump_ctrl.batch.open_executor` (``address``; ``workers`` >= 1: a local
+    cluster; 0: this process); with neither an address nor a worker count, the first
+    :data:`PROBE_RUNS` runs are timed here and decide (see the module).
+
+    Raises
+    ------
+    hydropump_ctrl.batch.SchedulerError
+        The scheduler at ``address`` does not answer.
     """
     out = prepare_out(out, sweep)
-    own = client is None
-    cluster = None
-    if own:
-        client, cluster = open_client(address, workers)
+    executed = 0
+    own = None
+    ex = executor or (DaskExecutor(client) if client is not None else None)
     try:
-        executed, reused = execute(sweep, out, client, batch=batch, progress=progress)
+        if ex is None:
+            ex, executed = _choose(sweep, out, address, workers, progress)
+            own = ex
+        n, reused = execute(sweep, out, ex, batch=batch, progress=progress)
+        executed += n
+        reused -= executed - n
     finally:
-        if own:
-            client.close()
-            if cluster is not None:
-                cluster.close()
+        if own is not None:
+            own.close()
     table = write_table(sweep, out)
     failed = sum(r['status'] == STATUS_FAILED for r in done_runs(out).values())
     rep = None
@@ -251,4 +266,20 @@ def run_sweep(sweep: Sweep, out: str | Path, *, address: str | None = None,
         from .report import write_report
         rep = write_report(sweep, table, out)
     return SweepResult(out=out, executed=executed, reused=reused, failed=failed, table=table,
-                       report=rep)
+                       report=rep, where=ex.where)
+
+
+def _choose(sweep: Sweep, out: Path, address, workers, progress) -> tuple[Executor, int]:
+    """The executor of a sweep (see :func:`run_sweep`) and the runs made here to choose."""
+    if address or os.environ.get('DASK_SCHEDULER_ADDRESS') or workers is not None:
+        return open_executor(address, workers), 0
+    here = InProcess()
+    probe: list[dict] = []
+    probed, _ = execute(sweep, out, here, progress=progress, limit=PROBE_RUNS,
+                        on_result=probe.append)
+    left = sweep.n_runs - len(done_runs(out))
+    # The first run in this process pays for the imports: the last one is timed.
+    t_run = probe[-1]['wall_s'] if probe else 0.0
+    if left and cluster_pays(left * t_run, cores()):
+        return open_executor(None, cores()), probed
+    return here, probed

@@ -6,6 +6,10 @@
   (``R^2`` near 1) ``SRC_j^2`` is the share of the output's variance due to input ``j``.
 - Sobol indices (first order ``S1``, total ``ST``, SALib) for a ``sobol`` sweep whose runs
   all succeeded.
+- Morris elementary effects (SALib): ``mu*`` (the mean absolute effect of moving an input
+  across its range, in the output's unit), ``sigma`` (their spread: interaction or
+  non-linearity) and the 95 % bootstrap interval of ``mu*``, for a ``morris`` sweep whose
+  runs all succeeded (a trajectory needs every one of its points).
 """
 
 from __future__ import annotations
@@ -18,6 +22,8 @@ import math
 from pathlib import Path
 
 import numpy as np
+
+from hydropump_sim import files
 
 from .runs import STATUS_OK
 from .spec import Sweep
@@ -56,7 +62,9 @@ def read_table(path: Path) -> dict:
 
 
 def sensitivities(sweep: Sweep, cols: dict) -> dict:
-    """``{output: {'src': {input: value}, 'r2': float, 'S1': {...}, 'ST': {...}}}``."""
+    """``{output: {'src': {input: value}, 'r2': float, 'S1': {...}, 'ST': {...},
+    'mu_star': {...}, 'sigma': {...}, 'mu_star_conf': {...}}}`` (Sobol and Morris entries only
+    for a sweep of that kind whose runs all succeeded)."""
     ok = cols['status'] == STATUS_OK
     x = np.column_stack([cols[n] for n in sweep.names])[ok]
     out = {}
@@ -67,16 +75,24 @@ def sensitivities(sweep: Sweep, cols: dict) -> dict:
         if good.sum() > len(sweep.names) + 1:
             coef, r2 = src(x[good], y[good])
             entry = {'src': dict(zip(sweep.names, coef.tolist())), 'r2': r2}
-        if sweep.problem is not None and ok.all() and np.isfinite(cols[name]).all():
+        complete = ok.all() and np.isfinite(cols[name]).all()
+        if sweep.method == 'sobol' and complete:
             from SALib.analyze import sobol
             si = sobol.analyze(sweep.problem, cols[name], calc_second_order=False, seed=0)
             entry['S1'] = dict(zip(sweep.names, np.asarray(si['S1']).tolist()))
             entry['ST'] = dict(zip(sweep.names, np.asarray(si['ST']).tolist()))
+        elif sweep.method == 'morris' and complete:
+            from SALib.analyze import morris
+            si = morris.analyze(sweep.problem, sweep.samples, np.asarray(cols[name], float),
+                                num_levels=sweep.levels, seed=0)
+            for key in ('mu_star', 'sigma', 'mu_star_conf'):
+                entry[key] = dict(zip(sweep.names, np.asarray(si[key], float).tolist()))
         out[name] = entry
     return out
 
 
 def _png(fig) -> str:
+    fig.tight_layout()      # panels apart: each tornado panel names its own inputs
     buf = io.BytesIO()
     fig.savefig(buf, format='png', dpi=90, bbox_inches='tight')
     import matplotlib.pyplot as plt
@@ -93,7 +109,7 @@ def write_report(sweep: Sweep, table: Path, out: Path) -> Path:
     cols = read_table(table)
     units = cols['__units__']
     sens = sensitivities(sweep, cols)
-    (out / 'sensitivities.json').write_text(json.dumps(sens, indent=1))
+    files.write_text(out / 'sensitivities.json', json.dumps(sens, indent=1), 'sensitivities')
     outputs = list(sweep.columns())
     ok = cols['status'] == STATUS_OK
     n_ok, n = int(ok.sum()), len(ok)
@@ -122,19 +138,24 @@ def write_report(sweep: Sweep, table: Path, out: Path) -> Path:
         parts += ['<h2>Histograms</h2>', _png(fig)]
 
         # Tornado: one panel per output, inputs sorted by |SRC|.
-        fig, axes = plt.subplots(1, len(outputs), figsize=(3.2 * len(outputs), 0.5 +
+        fig, axes = plt.subplots(1, len(outputs), figsize=(4.2 * len(outputs), 0.5 +
                                  0.45 * len(sweep.names)), squeeze=False)
         for ax, name in zip(axes[0], outputs):
             s = sens[name]['src']
             order = sorted(s, key=lambda k: abs(s[k]))
             ax.barh(range(len(order)), [s[k] for k in order],
                     color=['tab:red' if s[k] < 0 else 'tab:green' for k in order])
-            ax.set_yticks(range(len(order)), order if ax is axes[0][0] else [''] * len(order))
+            # Each panel has its own order: each names its inputs.
+            ax.set_yticks(range(len(order)), order, fontsize=7)
             ax.axvline(0.0, color='k', lw=0.8)
             ax.set_xlim(-1.05, 1.05)
             ax.set_title(f'{name}\nR² = {sens[name]["r2"]:.3f}', fontsize=9)
         parts += ['<h2>Sensitivities (tornado, standardised regression coefficients)</h2>',
                   _png(fig)]
+        if any('mu_star' in sens[o] for o in outputs):
+            parts += ['<h2>Morris elementary effects (tornado of mu*, 95 % interval; '
+                      "the output's unit)</h2>", _png(_morris_tornado(plt, sweep, sens,
+                                                                         outputs, units))]
         rows = ''.join(
             f'<tr><td>{o}</td><td>{i}</td><td>{sens[o]["src"].get(i, math.nan):+.3f}</td>'
             + (f'<td>{sens[o]["S1"][i]:.3f}</td><td>{sens[o]["ST"][i]:.3f}</td>'
@@ -142,6 +163,15 @@ def write_report(sweep: Sweep, table: Path, out: Path) -> Path:
             for o in outputs for i in sweep.names)
         parts.append('<table border=1 cellpadding=3><tr><th>output</th><th>input</th>'
                      '<th>SRC</th><th>Sobol S1</th><th>Sobol ST</th></tr>' + rows + '</table>')
+        if any('mu_star' in sens[o] for o in outputs):
+            rows = ''.join(
+                f'<tr><td>{o}</td><td>{i}</td><td>{sens[o]["mu_star"][i]:.4g}</td>'
+                f'<td>{sens[o]["mu_star_conf"][i]:.3g}</td><td>{sens[o]["sigma"][i]:.4g}</td>'
+                f'<td>{units.get(o, "")}</td></tr>'
+                for o in outputs if 'mu_star' in sens[o] for i in sweep.names)
+            parts.append('<table border=1 cellpadding=3><tr><th>output</th><th>input</th>'
+                         '<th>Morris mu*</th><th>95 % +-</th><th>sigma</th><th>unit</th></tr>'
+                         + rows + '</table>')
 
         fig, axes = plt.subplots(1, len(outputs), figsize=(3.2 * len(outputs), 2.6),
                                  squeeze=False)
@@ -173,7 +203,25 @@ def write_report(sweep: Sweep, table: Path, out: Path) -> Path:
         body += '<tr>' + ''.join(f'<td>{c}</td>' for c in cells) + '</tr>'
     parts.append('<h2>Worst runs</h2><table border=1 cellpadding=3><tr>' + head + '</tr>'
                  + body + '</table>')
-    path = out / 'report.html'
-    path.write_text('<!doctype html><meta charset="utf-8"><title>hydropump sweep</title>'
-                    '<body style="font-family:sans-serif">' + '\n'.join(parts) + '</body>')
-    return path
+    return files.write_text(out / 'report.html',
+                            '<!doctype html><meta charset="utf-8"><title>hydropump sweep'
+                            '</title><body style="font-family:sans-serif">' + '\n'.join(parts)
+                            + '</body>', 'report')
+
+
+def _morris_tornado(plt, sweep: Sweep, sens: dict, outputs: list, units: dict):
+    """One panel per output with Morris indices: inputs sorted by mu*, its 95 % interval as
+    an error bar, sigma marked beside."""
+    names = [o for o in outputs if 'mu_star' in sens[o]]
+    fig, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 0.5 + 0.45 *
+                             len(sweep.names)), squeeze=False)
+    for ax, name in zip(axes[0], names):
+        mu, conf, sd = (sens[name][k] for k in ('mu_star', 'mu_star_conf', 'sigma'))
+        order = sorted(mu, key=lambda k: mu[k])
+        ax.barh(range(len(order)), [mu[k] for k in order], xerr=[conf[k] for k in order],
+                color='tab:blue', label='mu*')
+        ax.plot([sd[k] for k in order], range(len(order)), 'k|', ms=10, label='sigma')
+        ax.set_yticks(range(len(order)), order, fontsize=7)
+        ax.set_title(f'{name} [{units.get(name, "")}]', fontsize=9)
+    axes[0][0].legend(fontsize=7, loc='lower right')
+    return fig

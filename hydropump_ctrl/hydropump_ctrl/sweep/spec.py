@@ -14,6 +14,10 @@ Example (SI units; see ``docs/sweeps.md``)::
         actuator.mu_a: {normal: 0.05, relative: true}   # 1 sigma, 5 %
     outputs: [fopdt, {peak: P_l}]
 
+Sampling methods: ``grid``, ``latin_hypercube``, ``distributions``, ``sobol`` (Saltelli, for
+Sobol indices) and ``morris`` (trajectories, for Morris elementary effects), the last two
+drawn by SALib.
+
 Every problem is one line; all of them are reported at once (:class:`SweepError`), before any
 run.
 """
@@ -50,7 +54,7 @@ class SweepError(HydropumpError, ValueError):
     head = 'invalid sweep'
 
 
-METHODS = ('grid', 'latin_hypercube', 'distributions', 'sobol')
+METHODS = ('grid', 'latin_hypercube', 'distributions', 'sobol', 'morris')
 _TOP = {'params', 'experiment', 'outputs', 'keep_relations', *METHODS}
 _EXPERIMENT = {'duration', 'current', 'scenario', 'model', 'dt_out'}
 OUTPUT_KINDS = ('fopdt', 'peak', 'final', 'step')
@@ -111,8 +115,10 @@ class Sweep:
     outputs: tuple        # (kind, signal or None)
     keep_relations: bool = True
     source: str = ''
-    #: SALib problem of a ``sobol`` sweep (bounds), else None.
+    #: SALib problem of a ``sobol`` or ``morris`` sweep (bounds), else None.
     problem: dict | None = None
+    #: Grid levels of a ``morris`` sweep (SALib's ``num_levels``).
+    levels: int = 4
 
     @property
     def n_runs(self) -> int:
@@ -136,6 +142,8 @@ class Sweep:
         doc = {'plant': self.plant.flat(), 'experiment': repr(self.experiment),
                'names': self.names, 'samples': self.samples.tolist(),
                'outputs': self.outputs, 'keep_relations': self.keep_relations}
+        if self.method == 'morris':      # the levels decide the analysis, not the runs alone
+            doc['levels'] = self.levels
         return hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode())\
             .hexdigest()[:16]
 
@@ -396,6 +404,30 @@ def _sobol(block: Mapping, plant, specs, errors):
     return names, x, problem
 
 
+def _morris(block: Mapping, plant, specs, errors):
+    """Morris trajectories (SALib): ``r`` of them, ``r (D + 1)`` runs, on a grid of
+    ``levels`` (an even number) per input."""
+    r = _count(block.get('r'), 'morris.r', errors)
+    levels = block.get('levels', 4)
+    if isinstance(levels, bool) or not isinstance(levels, int) or levels < 2 or levels % 2:
+        errors.append(f'morris.levels = {levels!r}: expected an even whole number >= 2 '
+                      '(grid levels per input)')
+        levels = None
+    bad = set(block) - {'r', 'levels', 'seed', 'relative', 'bounds'}
+    if bad:
+        errors.append(f'morris: unknown key(s) {", ".join(sorted(map(str, bad)))} (use r, '
+                      'levels, seed, relative, bounds)')
+    seed = _seed(block, 'morris', errors)
+    names, b = _bounds(block, 'morris', plant, specs, errors)
+    if errors or r is None or levels is None or not names:
+        return names, None, None, 4
+    from SALib.sample import morris as salib_morris
+    problem = {'num_vars': len(names), 'names': list(names),
+               'bounds': [[float(a), float(c)] for a, c in zip(*b)]}
+    x = salib_morris.sample(problem, r, num_levels=levels, seed=seed)
+    return names, x, problem, levels
+
+
 def _distributions(block: Mapping, plant, specs, errors):
     n = _count(block.get('n'), 'distributions.n', errors)
     seed = _seed(block, 'distributions', errors)
@@ -526,7 +558,7 @@ def sweep_from_dict(doc: Mapping, base: Path = Path('.'), source: str = '') -> S
         errors.append(f'{method}: expected a mapping')
         raise SweepError(errors, source or None)
     specs = spec_map(Params)
-    problem = None
+    problem, levels = None, 4
     sample_errors: list[str] = []
     if method == 'grid':
         names, x = _grid(block, plant, specs, sample_errors)
@@ -534,6 +566,8 @@ def sweep_from_dict(doc: Mapping, base: Path = Path('.'), source: str = '') -> S
         names, x = _lhs(block, plant, specs, sample_errors)
     elif method == 'sobol':
         names, x, problem = _sobol(block, plant, specs, sample_errors)
+    elif method == 'morris':
+        names, x, problem, levels = _morris(block, plant, specs, sample_errors)
     else:
         names, x = _distributions(block, plant, specs, sample_errors)
     errors += sample_errors
@@ -543,7 +577,7 @@ def sweep_from_dict(doc: Mapping, base: Path = Path('.'), source: str = '') -> S
         raise SweepError(errors or [f'{method}: no samples'], source or None)
     return Sweep(plant=plant, experiment=experiment, method=method, names=tuple(names),
                  samples=np.asarray(x, dtype=float), outputs=outputs,
-                 keep_relations=keep, source=source, problem=problem)
+                 keep_relations=keep, source=source, problem=problem, levels=levels)
 
 
 def followers(names: tuple, keep: bool = True) -> list[tuple]:

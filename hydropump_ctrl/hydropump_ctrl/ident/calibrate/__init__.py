@@ -8,12 +8,15 @@ Chosen plant parameters (dotted names of ``config/pump.yaml``) are estimated by 
 - :mod:`.data` - recordings as the model sees them (held inputs, measured outputs, noise
   levels) and the checks of bad input;
 - :mod:`.engine` - the simulations: every experiment at a parameter vector, and the
-  sensitivities from copies of the plant stepped with the nominal run in one compiled loop;
+  sensitivities from copies of the plant stepped with the nominal run in one compiled loop,
+  as jobs of the suite's execution layer (:mod:`hydropump_ctrl.batch`);
 - :mod:`.problem` - search coordinates, ties and priors; the residuals and their Jacobian,
   with the measurement delays and offsets solved inside (variable projection);
 - :mod:`.start` - start values in closed form where the data allow (eqs. 6, 9, 14);
 - :mod:`.uncertainty` - standard errors, 95 % intervals, weak and singular directions;
 - :mod:`.writers` - the calibrated params file, the JSON result, the report and figures;
+- :mod:`.fleet` - many pumps, each calibrated on its own bags as one task, and one table of
+  every pump's parameters and standard errors;
 - this module - the front end: :func:`calibrate` and :func:`validate`.
 
 Every free parameter comes back at its best estimate with a standard error and a 95 %
@@ -44,7 +47,7 @@ from .data import (
     experiment_from,
     noise_level,
 )
-from .engine import DERIVED, Engine, params_with, simulate_experiment, tied_values, WORKERS
+from .engine import DERIVED, Engine, params_with, simulate_experiment, tied_values
 from .problem import (
     check_free,
     Coordinates,
@@ -247,7 +250,7 @@ def calibrate(recordings: Sequence, base: Params, free: Sequence[str], *,
               offsets: Sequence[str] = (), fit_delays: bool = True, per_bag: bool = False,
               signals: Sequence[str] | None = None, priors: Sequence[Prior] = (),
               rtol: float = 1e-5, max_nfev: int = 30, multistart: bool = True,
-              closed_form_start: bool = True, workers: int = WORKERS,
+              closed_form_start: bool = True, executor=None, workers: int | None = None,
               progress: Callable[[str], None] | None = None) -> Calibration:
     """Fit the free plant parameters to ``recordings`` (see the package).
 
@@ -270,6 +273,9 @@ def calibrate(recordings: Sequence, base: Params, free: Sequence[str], *,
         Gaussian priors in log coordinates on free parameters (:func:`parse_prior`).
     closed_form_start : bool
         Also try the start values of :func:`.start.start_values` and begin from the better.
+    executor : hydropump_ctrl.batch.Executor, optional
+        Where the simulations run (a Dask cluster: each a task); default threads of this
+        process (:data:`.engine.THREADS`, or ``workers`` of them).
 
     Raises
     ------
@@ -283,7 +289,7 @@ def calibrate(recordings: Sequence, base: Params, free: Sequence[str], *,
     coords = Coordinates.of(base, free)
     theta0 = np.array([float(base.flat()[n]) for n in free])
     z0 = coords.to_z(theta0)
-    engine = Engine(base, free, exps, rtol=rtol, workers=workers)
+    engine = Engine(base, free, exps, rtol=rtol, executor=executor, workers=workers)
     prob = Problem(engine, coords, offsets=offsets, fit_delays=fit_delays, per_bag=per_bag,
                    priors=priors, progress=progress)
     notes = [n for e in exps for n in e.notes]

@@ -8,18 +8,17 @@ so the differences are smooth in the parameters (internal numerical differentiat
 step-size noise, a perturbation of 1e-4 in log coordinates is enough) and a copy costs six
 right-hand sides a step instead of a whole simulation's fourteen.
 
-Experiments (and, when there are fewer experiments than workers, groups of copies) run in
-parallel in forked worker processes, each keeping the validated parameter sets it built.
-Nothing here imports ROS.
+The jobs (one experiment for one or several parameter vectors) go to an executor of the
+suite's execution layer (:mod:`hydropump_ctrl.batch`): by default threads of this process,
+which run the compiled loops in parallel (they release the GIL) with nothing to start or to
+pickle; on a Dask cluster (``--scheduler``) each job is a task, the experiments sent to every
+worker once. Nothing here imports ROS.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor
 import math
-import multiprocessing
-import os
 from typing import Any
 
 import numpy as np
@@ -30,9 +29,14 @@ from hydropump_sim.params import Params, params_from_dict
 from hydropump_sim.simulate import simulate_copies
 from hydropump_sim.trim import equilibrium
 
+from ...batch import cores, Executor, InProcess
 from .data import Experiment
 
-WORKERS = min(4, os.cpu_count() or 1)
+#: What the nominal run of a job costs in copies: it takes 14 right-hand sides a step, a copy
+#: stepped with it 6 (:func:`hydropump_sim.simulate.simulate_copies`).
+NOMINAL_COST = 14.0 / 6.0
+#: Threads of the default executor: one per core, up to four.
+THREADS = min(4, cores())
 _OUT_INDEX = {s: OUTPUTS.index(o) for s, o in SIGNAL_OUTPUTS.items() if o is not None}
 
 # Parameters the schema derives from others (the cross-checks of params.py): the derived
@@ -109,24 +113,36 @@ def simulate_experiment(params: Params, exp: Experiment, rtol: float | None = No
     return {s: y[::exp.fine] for s, y in simulate_runs([params], exp, rtol)[0].items()}
 
 
-# Work shared with forked workers (set before the pool starts).
-_WORK: dict[str, Any] = {}
+class Work:
+    """What every job needs besides its parameter vectors (sent to each worker once), and
+    the validated parameter sets built from them, kept where the jobs run."""
+
+    def __init__(self, base: Params, names: Sequence[str], exps: Sequence[Experiment],
+                 rtol: float):
+        self.base, self.names, self.exps, self.rtol = base, tuple(names), list(exps), rtol
+        self.params: dict[bytes, Params] = {}
+
+    def __getstate__(self):
+        return {k: v for k, v in self.__dict__.items() if k != 'params'}
+
+    def __setstate__(self, state):
+        self.__dict__.update(state, params={})
+
+    def plant(self, theta) -> Params:
+        """The parameter set of ``theta``, validated once (validation takes milliseconds)."""
+        key = np.asarray(theta, float).tobytes()
+        p = self.params.get(key)
+        if p is None:
+            if len(self.params) > 64:
+                self.params.clear()
+            p = self.params[key] = params_with(self.base, self.names, theta)
+        return p
 
 
-def _job(job):
+def run_job(job, work: Work):
     """One experiment for several parameter vectors, the first one's steps shared."""
     e, thetas = job
-    # One validated parameter set per vector, not per experiment (validation takes ms).
-    cache = _WORK.setdefault('params', {})
-    plist = []
-    for theta in thetas:
-        key = np.asarray(theta).tobytes()
-        if key not in cache:
-            if len(cache) > 64:
-                cache.clear()
-            cache[key] = params_with(_WORK['base'], _WORK['names'], theta)
-        plist.append(cache[key])
-    return simulate_runs(plist, _WORK['exps'][e], _WORK['rtol'])
+    return simulate_runs([work.plant(t) for t in thetas], work.exps[e], work.rtol)
 
 
 class Engine:
@@ -141,28 +157,41 @@ class Engine:
     exps : sequence of Experiment
     rtol : float
         The integrator's relative tolerance.
-    workers : int
-        Worker processes (1: in this process).
+    executor : Executor, optional
+        Where the jobs run (:mod:`hydropump_ctrl.batch`; the caller closes it). Default:
+        :data:`THREADS` threads of this process, or with ``workers`` that many (1: a plain
+        loop).
     """
 
     def __init__(self, base: Params, names: Sequence[str], exps: Sequence[Experiment], *,
-                 rtol: float = 1e-5, workers: int = WORKERS):
+                 rtol: float = 1e-5, executor: Executor | None = None,
+                 workers: int | None = None):
         self.base, self.names, self.exps = base, tuple(names), list(exps)
         self.rtol = rtol
-        self.workers = max(1, int(workers))
+        self._own = executor is None
+        self.executor = executor if executor is not None else \
+            InProcess(THREADS if workers is None else workers)
+        self.workers = self.executor.workers
         self.n_trajectories = 0       # simulated runs, a copy counted as one
         self.n_loops = 0              # compiled loops (a nominal run with its copies is one)
-        self._pool = None
+        self._work = Work(base, names, exps, rtol)
+        self._shared = None
         self._cache: dict[bytes, list[dict[str, np.ndarray]]] = {}
 
     def _run(self, jobs):
         self.n_loops += len(jobs)
         self.n_trajectories += sum(len(th) for _, th in jobs)
-        if self.workers > 1 and len(jobs) > 1:
-            return list(self._executor().map(_job, jobs))
-        _WORK.update(base=self.base, names=self.names, exps=self.exps, rtol=self.rtol,
-                     params=_WORK.get('params', {}) if _WORK.get('exps') is self.exps else {})
-        return [_job(j) for j in jobs]
+        if self._shared is None:
+            self._shared = self.executor.share(self._work)
+        # The longest jobs first, so that no worker is left with one at the end: a job
+        # costs its samples times its nominal run and copies.
+        order = sorted(range(len(jobs)), key=lambda k: -self.exps[jobs[k][0]].n
+                       * (NOMINAL_COST + len(jobs[k][1]) - 1))
+        res = self.executor.map(run_job, [jobs[k] for k in order], work=self._shared)
+        out = [None] * len(jobs)
+        for k, r in zip(order, res):
+            out[k] = r
+        return out
 
     def outputs(self, theta: np.ndarray) -> list[dict[str, np.ndarray]]:
         """The true signals of every experiment at ``theta`` (cached)."""
@@ -177,12 +206,9 @@ class Engine:
         """The true signals at ``theta`` and at each perturbed vector of ``thetas``, every
         perturbed run stepped with the nominal one: ``(nominal[e], perturbed[j][e])``."""
         m = len(thetas)
-        # Fewer experiments than workers: split the copies (each group carries the nominal
-        # run, which chooses the steps).
-        groups = max(1, min(m, math.ceil(self.workers / max(len(self.exps), 1))))
-        bounds = np.linspace(0, m, groups + 1).round().astype(int)
         jobs, where = [], []
-        for e in range(len(self.exps)):
+        for e, groups in enumerate(self._groups(m)):
+            bounds = np.linspace(0, m, groups + 1).round().astype(int)
             for g in range(groups):
                 part = list(range(bounds[g], bounds[g + 1]))
                 if part:
@@ -198,21 +224,40 @@ class Engine:
         self._remember(np.asarray(theta, float).tobytes(), nominal)
         return nominal, perturbed
 
+    def _groups(self, m: int) -> list[int]:
+        """How many jobs the ``m`` copies of each experiment are split into, so that the
+        jobs keep the workers busy alike: each group carries the nominal run (which chooses
+        the steps, :data:`NOMINAL_COST` copies' worth), so a split costs work and is made
+        only where it shortens the longest worker's share (largest jobs first)."""
+        n = [e.n for e in self.exps]
+        groups = [1] * len(n)
+        if self.workers < 2 or m < 2:
+            return groups
+
+        def makespan(gs):
+            sizes = sorted((n[e] * (NOMINAL_COST + m / g) for e, g in enumerate(gs)
+                            for _ in range(g)), reverse=True)
+            load = [0.0] * self.workers
+            for c in sizes:
+                load[load.index(min(load))] += c
+            return max(load)
+        best = makespan(groups)
+        while True:
+            tries = [groups[:e] + [groups[e] + 1] + groups[e + 1:] for e in range(len(n))
+                     if groups[e] < min(m, self.workers)]
+            cand = min(tries, key=makespan, default=None)
+            if cand is None or makespan(cand) >= best * 0.99:
+                return groups
+            groups, best = cand, makespan(cand)
+
     def _remember(self, key: bytes, sims) -> None:
         if len(self._cache) > 32:
             for k in list(self._cache)[:16]:
                 del self._cache[k]
         self._cache[key] = sims
 
-    def _executor(self):
-        if self._pool is None:
-            _WORK.update(base=self.base, names=self.names, exps=self.exps, rtol=self.rtol,
-                         params={})
-            self._pool = ProcessPoolExecutor(self.workers,
-                                             mp_context=multiprocessing.get_context('fork'))
-        return self._pool
-
     def close(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown()
-            self._pool = None
+        """Release the shared work on a cluster; stop the executor if this engine made it."""
+        self._shared = None
+        if self._own:
+            self.executor.close()
