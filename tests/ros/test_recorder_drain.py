@@ -6,7 +6,6 @@ The first tests run the recorder logic without DDS, on streams built here."""
 
 import os
 import signal
-import struct
 import time
 import types
 
@@ -14,6 +13,9 @@ import numpy as np
 import pytest
 import yaml
 
+from ..recorder_fakes import clock_cdr as _clock
+from ..recorder_fakes import float_cdr as _float
+from ..recorder_fakes import Graph
 from .rosutil import call, spin_until, wait_for_publisher
 from .test_recorder import read_mcap
 
@@ -27,29 +29,6 @@ def _info(path):
 
 
 # ---- the drain without DDS ----------------------------------------------------------------
-
-class Graph:
-    def __init__(self, topics):
-        self.types = {t: 'std_msgs/msg/Float64' for t in topics}
-
-    def matched(self):
-        return list(self.types)
-
-    def publishers(self, topic):
-        return 1
-
-    def offered_qos(self, topic):
-        from hydropump_ctrl.recorder import qos_profile
-        return [qos_profile()]
-
-
-def _clock(ns):
-    return b'\x00\x01\x00\x00' + struct.pack('<iI', ns // 10 ** 9, ns % 10 ** 9)
-
-
-def _float(x=1.0):
-    return b'\x00\x01\x00\x00' + struct.pack('<d', x)
-
 
 def _recorder(tmp_path, topics, **cfg):
     from hydropump_ctrl.recorder import message_definition, Recorder, RecorderConfig

@@ -12,13 +12,7 @@ the others go on; bad input refused in one line before any calibration.
 """
 
 import json
-import os
-from pathlib import Path
-import re
 import shutil
-import signal
-import subprocess
-import sys
 import time
 
 import numpy as np
@@ -31,12 +25,12 @@ from hydropump_sim.params import load_params
 
 from .. import independent as ind
 from ..conftest import ROOT
+from ..daskprocs import external_cluster
 
 pytestmark = pytest.mark.timeout(300)
 
 USUAL = ('actuator.mu_a', 'actuator.P_a_bar', 'line.V_l', 'line.mu_u')
 BENCH = ['line_flow', 'line_pressure', 'actuator_pressure']
-BIN = Path(sys.executable).parent
 # Each pump's truth: factors on config/pump.yaml's values of USUAL.
 PUMPS = {'pump_a': (1.3, 0.8, 1.45, 0.88), 'pump_b': (0.85, 1.15, 0.8, 1.12),
          'pump_c': (1.12, 0.88, 1.25, 0.9)}
@@ -126,46 +120,15 @@ def test_every_pump_is_recovered_and_the_table_says_so(fleet, local):
     assert all(f'| {name} | ok |' in md for name in PUMPS)
 
 
-def _start(args):
-    return subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            start_new_session=True)
-
-
-def _stop(proc):
-    # By the id of the process this test started (its session: the worker's child too).
-    if proc.poll() is None:
-        os.killpg(proc.pid, signal.SIGTERM)
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait(5)
-
-
 def test_an_external_scheduler_gives_the_same_table(fleet, local, tmp_path, capsys):
     root, _ = fleet
-    sched = _start([str(BIN / 'dask'), 'scheduler', '--port', '0', '--no-dashboard',
-                    '--host', '127.0.0.1'])
-    worker = None
-    try:
-        address, t0 = None, time.monotonic()
-        while address is None and time.monotonic() - t0 < 30:
-            m = re.search(r'Scheduler at:\s+(tcp://\S+)', sched.stdout.readline())
-            address = m.group(1) if m else None
-        assert address, 'the scheduler did not report its address'
-        worker = _start([str(BIN / 'dask'), 'worker', address, '--nworkers', '2',
-                         '--nthreads', '1', '--no-dashboard'])
+    with external_cluster(2) as address:
         from dask.distributed import Client
         with Client(address, timeout=10, set_as_default=False) as c:
-            c.wait_for_workers(2, timeout=60)
             code, _, err = _cli(capsys, *_fleet_args(root, tmp_path, '--scheduler', address))
             # Each pump one task (the pump's bags and options shared once): both workers
             # took part.
             counts = c.run(lambda dask_worker: dask_worker.state.executed_count)
-    finally:
-        for proc in (worker, sched):
-            if proc is not None:
-                _stop(proc)
     assert code == 0, err
     assert sum(ln.startswith('fleet: ') for ln in err) == len(PUMPS)   # one line a pump
     assert sorted(counts.values())[0] >= 1 and sum(counts.values()) >= len(PUMPS), counts

@@ -17,6 +17,10 @@ from hydropump_ctrl.recorder import (
 )
 from hydropump_sim.schema import build
 
+from ..recorder_fakes import clock_cdr as _clock
+from ..recorder_fakes import float_cdr as _float
+from ..recorder_fakes import Graph
+
 MS = 1_000_000
 
 
@@ -174,28 +178,6 @@ def test_a_bag_is_never_overwritten_and_bad_paths_name_the_reason(tmp_path):
 
 # ---- the recorder's sessions -----------------------------------------------------------------
 
-class Graph:
-    def __init__(self):
-        self.types = {'/a': 'std_msgs/msg/Float64'}
-
-    def matched(self):
-        return ['/a']
-
-    def publishers(self, topic):
-        return 1
-
-    def offered_qos(self, topic):
-        return [qos_profile()]
-
-
-def _clock(ns):
-    return b'\x00\x01\x00\x00' + struct.pack('<iI', ns // 10 ** 9, ns % 10 ** 9)
-
-
-def _float():
-    return b'\x00\x01\x00\x00' + struct.pack('<d', 1.0)
-
-
 def test_a_new_simulator_closes_the_bag_and_opens_the_next(tmp_path):
     logs = []
     cfg = build(RecorderConfig, {'output': str(tmp_path / 'bag'), 'topics': ['/a']})
@@ -210,7 +192,6 @@ def test_a_new_simulator_closes_the_bag_and_opens_the_next(tmp_path):
     assert len(rec.closed) == 1 and rec.session.path.name == 'bag_1'
     assert any('went back' in t for t in logs)
     assert rec.request_stop(0.5)
-    rec.swept()
     rec.advance(1)
     assert rec.finish_stop()[0].name == 'bag_1'
     first = yaml.safe_load((tmp_path / 'bag' / 'metadata.yaml').read_text())
@@ -227,7 +208,6 @@ def test_gaps_in_sequence_numbers_are_counted_as_lost(tmp_path):
         rec.message('/a', False, _float(), {'source_timestamp': 1 + n,
                                             'publication_sequence_number': n})
     rec.request_stop(0.1)
-    rec.swept()
     path, count = rec.finish_stop()
     info = yaml.safe_load((path / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     assert count == 4

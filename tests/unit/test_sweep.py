@@ -8,10 +8,7 @@ from the files the sweep leaves.
 
 import os
 from pathlib import Path
-import re
 import signal
-import subprocess
-import sys
 import time
 
 import numpy as np
@@ -20,9 +17,10 @@ import pytest
 from hydropump_ctrl.cli import main
 from hydropump_ctrl.sweep import read_table, run_sweep, sensitivities, sweep_from_dict
 
+from ..daskprocs import external_cluster
+
 ROOT = Path(__file__).resolve().parents[2]
 CONFIG = ROOT / 'config'
-BIN = Path(sys.executable).parent
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -103,22 +101,6 @@ def test_a_refused_run_is_recorded_and_the_sweep_goes_on_and_resumes(client, tmp
     assert list(read_table(tmp_path / 'runs.parquet')['status']) == ['ok', 'failed', 'ok']
 
 
-def _start(args):
-    return subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            start_new_session=True)
-
-
-def _stop(proc):
-    # By the id of the process this test started (its session: the worker's child too).
-    if proc.poll() is None:
-        os.killpg(proc.pid, signal.SIGTERM)
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait(5)
-
-
 def test_same_seed_same_table_on_a_local_cluster_and_on_a_separate_scheduler(client, tmp_path):
     doc = {'distributions': {'n': 6, 'seed': 7, 'parameters': {
         'actuator.mu_a': {'normal': 0.05, 'relative': True},
@@ -126,27 +108,9 @@ def test_same_seed_same_table_on_a_local_cluster_and_on_a_separate_scheduler(cli
         'outputs': ['fopdt', 'step', {'peak': 'P_l'}]}
     run_sweep(spec(**doc), tmp_path / 'local', client=client, progress=False, report=False)
 
-    sched = _start([str(BIN / 'dask'), 'scheduler', '--port', '0', '--no-dashboard',
-                    '--host', '127.0.0.1'])
-    worker = None
-    try:
-        address, t0 = None, time.monotonic()
-        while address is None and time.monotonic() - t0 < 30:
-            line = sched.stdout.readline()
-            m = re.search(r'Scheduler at:\s+(tcp://\S+)', line)
-            address = m.group(1) if m else None
-        assert address, 'the scheduler did not report its address'
-        worker = _start([str(BIN / 'dask'), 'worker', address, '--nworkers', '1',
-                         '--nthreads', '1', '--no-dashboard'])
-        from dask.distributed import Client
-        with Client(address, timeout=10, set_as_default=False) as c:
-            c.wait_for_workers(1, timeout=30)
-            run_sweep(spec(**doc), tmp_path / 'remote', address=address, progress=False,
-                      report=False)
-    finally:
-        for proc in (worker, sched):
-            if proc is not None:
-                _stop(proc)
+    with external_cluster(1) as address:
+        run_sweep(spec(**doc), tmp_path / 'remote', address=address, progress=False,
+                  report=False)
     # And in this process, no Dask at all.
     here = run_sweep(spec(**doc), tmp_path / 'here', workers=0, progress=False, report=False)
     assert here.where == 'this process'

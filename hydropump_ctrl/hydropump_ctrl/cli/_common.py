@@ -189,6 +189,16 @@ def add_progress_option(parser, what: str = 'progress') -> None:
     prog.add_argument('--no-progress', dest='progress', action='store_false')
 
 
+def add_where_options(parser, *, scheduler: str, workers: str, in_process: str) -> None:
+    """Where the work of :mod:`hydropump_ctrl.batch` runs: ``--scheduler ADDRESS``, and
+    either ``--workers N`` (a local cluster) or ``--in-process``; the help texts say what
+    each default means for the command."""
+    parser.add_argument('--scheduler', metavar='ADDRESS', help=scheduler)
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument('--workers', type=int_in(1, 1024), help=workers)
+    where.add_argument('--in-process', action='store_true', help=in_process)
+
+
 def plant_file(args) -> Path:
     """The plant parameters file of ``--params``, or the default one."""
     return Path(args.params) if args.params else default_params_path()

@@ -40,7 +40,7 @@ import time
 from ._common import (
     add_params_option,
     add_progress_option,
-    int_in,
+    add_where_options,
     output_file,
     plant_file,
     protect_output,
@@ -130,17 +130,13 @@ def register(sub) -> None:
                    help='calibrate many pumps: FOLDER holds one folder per pump with its bags '
                         '(instead of BAG...); writes fleet.csv, fleet.parquet, fleet.md and a '
                         'folder per pump into --report')
-    c.add_argument('--scheduler', metavar='ADDRESS',
-                   help='run on this Dask scheduler, e.g. tcp://host:8786 (default: '
-                        '$DASK_SCHEDULER_ADDRESS, else this process)')
-    where = c.add_mutually_exclusive_group()
-    where.add_argument('--workers', type=int_in(1, 1024),
-                       help='worker processes of a local Dask cluster (default: this process, '
-                            'its simulations on threads; a fleet: the first pump here, timed, '
-                            'the rest on a local cluster if that is sooner, start-up '
-                            'included)')
-    where.add_argument('--in-process', action='store_true',
-                       help='this process alone, no Dask (a fleet: one pump after the other)')
+    add_where_options(
+        c, scheduler='run on this Dask scheduler, e.g. tcp://host:8786 (default: '
+                     '$DASK_SCHEDULER_ADDRESS, else this process)',
+        workers='worker processes of a local Dask cluster (default: this process, its '
+                'simulations on threads; a fleet: the first pump here, timed, the rest on a '
+                'local cluster if that is sooner, start-up included)',
+        in_process='this process alone, no Dask (a fleet: one pump after the other)')
     c.set_defaults(func=cmd_calibrate)
     v = sub.add_parser('validate', help='residual and fit %% of a params file on bags it was '
                        'not fitted to', description=__doc__.splitlines()[0],

@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ._common import add_progress_option, int_in, run_dir, UsageError
+from ._common import add_progress_option, add_where_options, int_in, run_dir, UsageError
 
 
 def register(subparsers) -> None:
@@ -25,15 +25,12 @@ def register(subparsers) -> None:
         description=__doc__.splitlines()[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument('spec', metavar='SPEC.yaml', help='sweep file (docs/sweeps.md)')
-    p.add_argument('--scheduler', metavar='ADDRESS',
-                   help='Dask scheduler, e.g. tcp://host:8786 (default: $DASK_SCHEDULER_ADDRESS,'
-                        ' else a local cluster)')
-    where = p.add_mutually_exclusive_group()
-    where.add_argument('--workers', type=int_in(1, 1024),
-                       help='worker processes of a local cluster (default: this process for a '
-                            'sweep too short to pay for a cluster, else one worker per core)')
-    where.add_argument('--in-process', action='store_true',
-                       help='every run in this process, no Dask at all')
+    add_where_options(
+        p, scheduler='Dask scheduler, e.g. tcp://host:8786 (default: $DASK_SCHEDULER_ADDRESS, '
+                     'else a local cluster)',
+        workers='worker processes of a local cluster (default: this process for a sweep too '
+                'short to pay for a cluster, else one worker per core)',
+        in_process='every run in this process, no Dask at all')
     p.add_argument('--batch', type=int_in(1, 10000),
                    help='runs per Dask task (default: an eighth of what is left per worker, '
                         'at most 16, down to single runs at the end)')

@@ -529,10 +529,6 @@ class Recorder:
         self.session.stop_wall = None if until_ns is not None else wall
         return True
 
-    def swept(self) -> None:
-        """Everything DDS had delivered is taken. The drain needs no such mark (the take
-        loop goes on taking until the bag closes); kept for callers that give it."""
-
     @property
     def needs_count(self) -> bool:
         """The drain's bound passed first: the caller takes what is still queued and hands
