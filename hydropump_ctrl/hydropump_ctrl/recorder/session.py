@@ -154,6 +154,12 @@ class Session:
         w = self.writer
         sim = self.seq.mode == 'sim'
         events = self.rec.events
+        if records and not w.topics:
+            # Channels in the recorded topics' order, not in the order of the first arrivals
+            # (which differ between runs): the same run gives the same bytes.
+            for t in self.rec.topics:
+                if t in self.rec.graph.types:
+                    w.add_topic(t, self.rec.graph.types[t], self.rec.graph.offered_qos(t))
         for r in records:
             if self.stop_at is not None and sim and r.log_ns > self.stop_at:
                 continue  # after the stop
