@@ -401,6 +401,82 @@ def defaults_of(cls: type) -> dict[str, Any]:
 
 # ---- files -------------------------------------------------------------------------------
 
+#: The largest YAML file any reader takes [bytes]: a params, circuit or scenario file is a
+#: few kB; this bounds what a file can make a reader allocate, with the anchors refused.
+MAX_YAML_BYTES = 4 << 20
+
+
+#: The most values a YAML document may expand to, its aliases counted at every use: an
+#: alias bomb (a few lines of nested aliases) expands to billions.
+MAX_YAML_NODES = 200_000
+
+
+def _expanded_size(node, memo: dict, path: set) -> int:
+    key = id(node)
+    if key in memo:
+        return memo[key]
+    if key in path:
+        raise yaml.composer.ComposerError(None, None, 'a recursive alias', node.start_mark)
+    path.add(key)
+    n = 1
+    if isinstance(node, yaml.SequenceNode):
+        n += sum(_expanded_size(v, memo, path) for v in node.value)
+    elif isinstance(node, yaml.MappingNode):
+        n += sum(_expanded_size(k, memo, path) + _expanded_size(v, memo, path)
+                 for k, v in node.value)
+    path.discard(key)
+    memo[key] = n
+    if n > MAX_YAML_NODES:
+        raise yaml.composer.ComposerError(
+            None, None, f'it expands to more than {MAX_YAML_NODES} values through its '
+            'aliases (*name)', node.start_mark)
+    return n
+
+
+class _StrictLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, refusing a document that expands beyond
+    :data:`MAX_YAML_NODES` values (aliases counted at every use), before anything is built
+    from it, and a key given twice in one mapping (the last would silently win)."""
+
+    def compose_document(self):
+        node = super().compose_document()
+        if node is not None:
+            _expanded_size(node, {}, set())
+        return node
+
+    def construct_mapping(self, node, deep=False):
+        seen = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=True)
+            try:
+                dup = key in seen
+            except TypeError:
+                continue  # an unhashable key: the base class says so
+            if dup:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f'the key {key!r} is given twice', key_node.start_mark)
+            seen.add(key)
+        return super().construct_mapping(node, deep)
+
+
+def parse_yaml(text: str, where: str) -> Any:
+    """A YAML document read strictly (:class:`_StrictLoader`, at most
+    :data:`MAX_YAML_BYTES`); :class:`ParamError` names ``where`` and the place."""
+    if len(text) > MAX_YAML_BYTES:
+        raise ParamError([f'{where}: {len(text)} characters, more than the '
+                          f'{MAX_YAML_BYTES >> 20} MiB a YAML file of this suite may hold'])
+    try:
+        return yaml.load(text, Loader=_StrictLoader)  # noqa: S506 - a SafeLoader subclass
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, 'problem_mark', None)
+        at = f' at line {mark.line + 1}' if mark else ''
+        raise ParamError([f'{where}: not valid YAML{at}: {getattr(exc, "problem", exc)}']) \
+            from None
+    except RecursionError:
+        raise ParamError([f'{where}: nested too deeply to be a YAML file of this suite']) \
+            from None
+
+
 def assignments(items: Iterable[str], what: str = '--set',
                 example: str = 'emc.tau_control=0.02') -> dict[str, Any]:
     """``NAME=VALUE`` pairs, values read as YAML (``0.02``, ``true``, ``post``);
@@ -412,10 +488,9 @@ def assignments(items: Iterable[str], what: str = '--set',
             errors.append(f'{what} {item!r}: expected NAME=VALUE, e.g. {example}')
             continue
         try:
-            out[name.strip()] = yaml.safe_load(text)
-        except yaml.YAMLError as exc:
-            why = getattr(exc, 'problem', None) or 'not a YAML value'
-            errors.append(f'{what} {item!r}: the value is not valid YAML ({why})')
+            out[name.strip()] = parse_yaml(text, f'{what} {item!r}')
+        except ParamError as exc:
+            errors += exc.lines
     if errors:
         raise ParamError(errors)
     return out
@@ -426,6 +501,10 @@ def read_yaml(path: str | Path) -> Any:
     :class:`ParamError` that names the file and the place."""
     path = Path(path)
     try:
+        if path.stat().st_size > MAX_YAML_BYTES:
+            raise ParamError([f'{path}: {path.stat().st_size} bytes, more than the '
+                              f'{MAX_YAML_BYTES >> 20} MiB a YAML file of this suite may '
+                              'hold'])
         raw = path.read_bytes()
     except IsADirectoryError:
         raise ParamError([f'{path}: is a folder, not a YAML file']) from None
@@ -437,13 +516,7 @@ def read_yaml(path: str | Path) -> Any:
         line = raw[:exc.start].count(b'\n') + 1
         raise ParamError([f'{path}: not a text file in UTF-8 (byte {exc.start}, line {line})'])\
             from None
-    try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, 'problem_mark', None)
-        where = f' at line {mark.line + 1}' if mark else ''
-        raise ParamError([f'{path}: not valid YAML{where}: {getattr(exc, "problem", exc)}']) \
-            from None
+    return parse_yaml(text, str(path))
 
 
 def ros_parameters(doc: Any) -> Mapping[str, Any]:

@@ -256,10 +256,10 @@ def file_kind(path: Path) -> str | None:
         return None
     if suffix == '.csv':
         return 'results CSV' if text.startswith(RESULTS_CSV_HEAD) else 'CSV of other data'
-    import yaml
+    from hydropump_sim.schema import ParamError, parse_yaml
     try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError:
+        data = parse_yaml(text, str(path))
+    except ParamError:
         return 'text that is not YAML'
     if not isinstance(data, dict):
         return 'YAML of another kind'

@@ -137,12 +137,12 @@ def _stream_mcap(path: Path, want: list[str] | None):
 
 def _metadata(path: Path) -> tuple[dict | None, str]:
     """``rosbag2_bagfile_information`` of a bag directory, or ``None`` and why not."""
-    import yaml
+    from hydropump_sim.schema import read_yaml
     meta = path / 'metadata.yaml'
     if not meta.is_file():
         return None, 'no metadata.yaml: the recorder did not finish'
     try:
-        info = yaml.safe_load(meta.read_text())['rosbag2_bagfile_information']
+        info = read_yaml(meta)['rosbag2_bagfile_information']
         files = [str(f) for f in info['relative_file_paths']]
         return {**info, 'relative_file_paths': files}, ''
     except Exception as exc:  # noqa: BLE001 - any YAML or layout problem

@@ -176,12 +176,12 @@ def custom_data(path: str | Path) -> Mapping[str, str] | None:
     """The ``custom_data`` of a bag (a directory, or one of its storage files), from its
     ``metadata.yaml`` or else from the last ``rosbag2`` metadata record of an MCAP file;
     ``None`` when the bag has none (a bag of another recorder, a killed one, not a bag)."""
-    import yaml
+    from hydropump_sim.schema import read_yaml
     path = Path(path)
     meta = path / 'metadata.yaml' if path.is_dir() else path.with_name('metadata.yaml')
     try:
         if meta.is_file() and (path.is_dir() or path.name in meta.read_text()):
-            info = yaml.safe_load(meta.read_text())['rosbag2_bagfile_information']
+            info = read_yaml(meta)['rosbag2_bagfile_information']
             return info.get('custom_data') or None
         if path.suffix == '.mcap' and path.is_file():
             return _mcap_custom_data(path)
@@ -193,7 +193,8 @@ def custom_data(path: str | Path) -> Mapping[str, str] | None:
 def _mcap_custom_data(path: Path) -> Mapping[str, str] | None:
     from mcap.records import Metadata
     from mcap.stream_reader import StreamReader
-    import yaml
+
+    from hydropump_sim.schema import parse_yaml
     last = None
     with path.open('rb') as f:
         try:
@@ -204,7 +205,7 @@ def _mcap_custom_data(path: Path) -> Mapping[str, str] | None:
             pass
     if last is None:
         return None
-    return (yaml.safe_load(last) or {}).get('custom_data') or None
+    return (parse_yaml(last, str(path)) or {}).get('custom_data') or None
 
 
 def _count(value) -> int:
