@@ -20,7 +20,8 @@ component and the port; then it lays out
 - the **states**: every component's own, then one pressure per node that has a volume
   (continuity, eqs. 3 and 9); a node whose pressure a component fixes (a tank) has none;
 - the **inputs** ``<component>.<input>`` and the **signals** ``<component>.<signal>``
-  (``y``: every node's pressure and net inflow first, then the components' signals);
+  (``y``: every node's pressure, net inflow and volume first, then the components'
+  signals);
 - the **parameters** ``p``: the fluid, each node's volume or fixed pressure, then each
   component's block (its ports' node indices, then its own values);
 
@@ -109,7 +110,8 @@ class Circuit:
     inputs, input_units, u0
         Full input names, units, and the values they hold unless told otherwise.
     signals, signal_units
-        Full signal names (``node:<n>`` pressures and ``node:<n>.inflow`` first).
+        Full signal names (``node:<n>`` pressures, ``node:<n>.inflow`` and
+        ``node:<n>.volume`` first).
     p : ndarray
     module
         The compiled module (``evaluate``, ``evaluate_c``).
@@ -183,10 +185,11 @@ class Circuit:
 
     def operator_inputs(self) -> list[str]:
         """The inputs an operator or a duty cycle sets (valve commands, forces, torques), by
-        their shortest names: every input but the pump's and the paper load's (eq. 9),
-        which the simulator holds as its operating point."""
-        plant = {f'{pt.comp.name}.{s.name}' for pt in self.parts
-                 if pt.comp.kind in ('pump', 'ls_pump', 'orifice_load') for s in pt.comp.INPUTS}
+        their shortest names: every input but those of the components whose inputs are the
+        plant's operating point (``PLANT_INPUTS``: the pump's, the paper load's of eq. 9),
+        which the simulator holds."""
+        plant = {f'{pt.comp.name}.{s.name}' for pt in self.parts if pt.comp.PLANT_INPUTS
+                 for s in pt.comp.INPUTS}
         aliased = {full for exp in self.composites.values() for full in exp.inputs.values()}
         return [n for n in self.all_inputs() if n not in plant and n not in aliased]
 
@@ -198,51 +201,59 @@ class Circuit:
         entry = pt.comp.INPUTS[k - pt.u.start].param_spec('')
         return dataclasses.replace(entry, name=f'{prefix}{name}', default=float(self.u0[k]))
 
+    def role(self, role: str) -> list[Part]:
+        """The parts that declare ``role`` (``components.base.ROLES``)."""
+        return [pt for pt in self.parts if role in pt.comp.ROLES]
+
     def pump(self) -> Part | None:
         """The circuit's pump (electro-hydraulic or hydromechanical), if any."""
-        return next((pt for pt in self.parts if pt.comp.kind in ('pump', 'ls_pump')), None)
+        return next(iter(self.role('pump')), None)
+
+    def electric_pump(self) -> bool:
+        """Whether the circuit's pump is driven by the solenoid current."""
+        pump = self.pump()
+        return pump is not None and 'electric' in pump.comp.ROLES
 
     def measured(self) -> dict[str, str]:
         """The suite's measured signals (``hydropump_sim.measure.SIGNALS`` names, plus
-        ``ls_pressure``) -> the circuit signal each is: the pump's, the load orifice's
-        (eq. 9), the shuttle network's load-sensing pressure."""
+        ``ls_pressure``) -> the circuit signal each is, as the components declare them
+        (``MEASURES``: the pump's, the paper load's of eq. 9, the load-sensing pressure);
+        the first component to declare a signal gives it."""
         out: dict[str, str] = {}
-        pump = self.pump()
-        if pump is not None:
-            n = pump.comp.name
-            out.update(pump_flow=f'{n}.Q_p', line_flow=f'{n}.q_l', actuator_pressure=f'{n}.P_a',
-                       line_pressure=f'{n}.P_l', spool_position=f'{n}.x_c',
-                       actuator_position=f'{n}.x_a')
-            if pump.comp.kind == 'pump':
-                out['solenoid_current'] = f'{n}.current'
-        load = next((pt for pt in self.parts if pt.comp.kind == 'orifice_load'), None)
-        if load is not None:
-            out.update(load_flow=f'{load.comp.name}.flow',
-                       load_pressure=f'{load.comp.name}.load_pressure')
-        ls = next((pt for pt in self.parts if pt.comp.kind == 'shuttle_network'), None)
-        if ls is not None:
-            out['ls_pressure'] = f'{ls.comp.name}.pressure'
+        for pt in self.parts:
+            for sig, own in pt.comp.MEASURES.items():
+                out.setdefault(sig, f'{pt.comp.name}.{own}')
         return out
 
     def loads(self) -> dict[str, dict[str, str]]:
-        """Every load: a section (or a load orifice) -> its ``pressure``, ``flow``,
-        ``position``/``velocity`` or ``speed`` signals and its ``command`` input."""
+        """Every load: a composite section, or a part with the ``load`` role -> its
+        ``pressure``, ``flow``, ``position``/``velocity`` or ``speed`` signals and its
+        ``command`` input."""
         out: dict[str, dict[str, str]] = {}
         for name, exp in self.composites.items():
             entry = {k: f'{name}.{k}' for k in exp.signals}
             if 'command' in exp.inputs:
                 entry['command'] = f'{name}.command'
             out[name] = entry
-        for pt in self.kinds('orifice_load'):
+        for pt in self.role('load'):
             n = pt.comp.name
-            out[n] = {'pressure': f'{n}.load_pressure', 'flow': f'{n}.flow'}
+            out[n] = {k: f'{n}.{v}' for k, v in pt.comp.LOAD_SIGNALS.items()}
+        return out
+
+    def joints(self) -> list[tuple[str, str | None, str | None]]:
+        """``(joint, position signal, velocity signal)`` of every ``joint_states`` entry the
+        components declare (valve spools, cylinders, motors)."""
+        out = []
+        for pt in self.parts:
+            n = pt.comp.name
+            for j in pt.comp.JOINTS:
+                out.append((f'{n}{"." + j.suffix if j.suffix else ""}',
+                            f'{n}.{j.position}' if j.position else None,
+                            f'{n}.{j.velocity}' if j.velocity else None))
         return out
 
     def node_state(self, node: str) -> int:
         return self.states.index(f'{NODE_PREFIX}{node}')
-
-    def kinds(self, kind: str) -> list[Part]:
-        return [pt for pt in self.parts if pt.comp.kind == kind]
 
     # ---- the stepper's view ---------------------------------------------------------------
 
@@ -616,8 +627,9 @@ def _layout(comps: list[Component], composites: dict[str, Expansion], fluid: Flu
     states, units, scales, integ = [], [], [], []
     parts: list[Part] = []
     inputs, in_units, in_ranges, u0 = [], [], [], []
-    signals = [f'{NODE_PREFIX}{n}' for n in nodes] + [f'{NODE_PREFIX}{n}.inflow' for n in nodes]
-    sig_units = ['Pa'] * len(nodes) + ['m^3/s'] * len(nodes)
+    signals = ([f'{NODE_PREFIX}{n}' for n in nodes] + [f'{NODE_PREFIX}{n}.inflow' for n in nodes]
+               + [f'{NODE_PREFIX}{n}.volume' for n in nodes])
+    sig_units = ['Pa'] * len(nodes) + ['m^3/s'] * len(nodes) + ['m^3'] * len(nodes)
     p: list[float] = [float(getattr(fluid, k)) for k in FLUID_KEYS]
     p += [volume[n] if n not in fixed else 0.0 for n in nodes]
     for n, (cname, how, key) in fixed.items():
@@ -772,7 +784,8 @@ def _generate(circuit: Circuit, node_states: dict[str, int], index: dict[str, in
             kernels[mod] = f'k_{len(kernels)}'
             lines.append(f'from {mod} import kernel as {kernels[mod]}')
     lines += ['', '', 'def evaluate(t, x, u, p, dx, y):',
-              f'    P = y[0:{n_nodes}]', f'    Q = y[{n_nodes}:{2 * n_nodes}]']
+              f'    P = y[0:{n_nodes}]', f'    Q = y[{n_nodes}:{2 * n_nodes}]',
+              f'    V = y[{2 * n_nodes}:{3 * n_nodes}]']
     for i, node in enumerate(circuit.nodes):
         if node in node_states:
             lines.append(f'    P[{i}] = x[{node_states[node]}]')
@@ -784,15 +797,16 @@ def _generate(circuit: Circuit, node_states: dict[str, int], index: dict[str, in
                 k = circuit.inputs.index(f'{cname}.{key}')
                 lines.append(f'    P[{i}] = u[{k}]')
         lines.append(f'    Q[{i}] = 0.0')
+        lines.append(f'    V[{i}] = p[{N_FLUID + i}]')
     for part in circuit.parts:
         k = kernels[type(part.comp).__module__]
         lines.append(f'    {k}(t, x[{part.x.start}:{part.x.stop}], dx[{part.x.start}:'
                      f'{part.x.stop}], u[{part.u.start}:{part.u.stop}], p[{part.p.start}:'
-                     f'{part.p.stop}], y[{part.y.start}:{part.y.stop}], P, Q)')
+                     f'{part.p.stop}], y[{part.y.start}:{part.y.stop}], P, Q, V)')
     fl = ', '.join(f'p[{k}]' for k in range(N_FLUID))
     for node, k in node_states.items():
         i = index[node]
-        lines.append(f'    dx[{k}] = continuity(P[{i}], Q[{i}], p[{N_FLUID + i}], {fl})')
+        lines.append(f'    dx[{k}] = continuity(P[{i}], Q[{i}], V[{i}], {fl})')
     # A component that fixes its node's pressure reports the net flow into it.
     for node, (cname, _, _) in circuit.fixed.items():
         part = next(pt for pt in circuit.parts if pt.comp.name == cname)

@@ -159,9 +159,8 @@ def main_inputs(circuit: Circuit) -> list[str]:
     """The pump's current and every load's command (a section's by its own name)."""
     aliased = {t for exp in circuit.composites.values() for t in exp.inputs.values()}
     names = [n for n in circuit.all_inputs() if n.endswith('.command') and n not in aliased]
-    pump = circuit.pump()
-    if pump is not None and pump.comp.kind == 'pump':
-        names.insert(0, f'{pump.comp.name}.current')
+    if circuit.electric_pump():
+        names.insert(0, f'{circuit.pump().comp.name}.current')
     return names
 
 

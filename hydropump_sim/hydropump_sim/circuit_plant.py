@@ -55,8 +55,9 @@ def circuit_topics(circuit: Circuit) -> tuple[list[Topic], list[tuple[str, str]]
     if 'ls_pressure' in m:
         topics.append(Topic('ls_pressure', m['ls_pressure'], 'pressure', 'line_pressure'))
     commands = []
+    measured = set(m.values())
     for name, sig in circuit.loads().items():
-        if name in ('load',) and 'load_pressure' in m:
+        if set(sig.values()) <= measured:
             continue  # the paper's load: load_flow and load_pressure carry it
         for key, kind, like in (('pressure', 'pressure', 'line_pressure'),
                                 ('flow', 'flow', 'line_flow'), ('position', 'position', None),
@@ -89,9 +90,9 @@ class CircuitPlant:
         self.params = pump.comp.params.plant
         self._pump = pump.comp.name
         idx = circuit.input_index
-        self._i_cur = idx(f'{self._pump}.current') if pump.comp.kind == 'pump' else None
+        self._i_cur = idx(f'{self._pump}.current') if circuit.electric_pump() else None
         self._i_fp = idx(f'{self._pump}.shaft_speed')
-        load = next((pt for pt in circuit.parts if pt.comp.kind == 'orifice_load'), None)
+        load = next((pt for pt in circuit.role('load') if pt.comp.PLANT_INPUTS), None)
         self._i_pu = idx(f'{load.comp.name}.load_pressure') if load else None
         self._i_xi = idx(f'{load.comp.name}.aperture') if load else None
         sig = circuit.signal_index
@@ -105,10 +106,11 @@ class CircuitPlant:
                                 [sig(v['flow']) for v in circuit.loads().values()
                                  if 'flow' in v], dtype=np.int64)
         self._y_relief = np.array([sig(f'{pt.comp.name}.flow')
-                                   for pt in circuit.kinds('relief')], dtype=np.int64)
+                                   for pt in circuit.role('pressure_limit')], dtype=np.int64)
         self.topics, self.commands = circuit_topics(circuit)
         self._y_topics = [sig(t.signal) for t in self.topics]
-        self._joints = self._joint_signals()
+        self._joints = [(j, sig(p) if p else None, sig(v) if v else None)
+                        for j, p, v in circuit.joints()]
         self._sim = CircuitSimulator(circuit, dt, config)
         self._y = self._sim.outputs()
 
@@ -228,26 +230,12 @@ class CircuitPlant:
         y = self._y
         return {t.topic: float(y[k]) for t, k in zip(self.topics, self._y_topics)}
 
-    def _joint_signals(self) -> list[tuple[str, int, int | None]]:
-        """``(joint name, position signal, velocity signal)`` of the loads' valve spools
-        and actuators."""
-        out = []
-        sig = self.circuit.signal_index
-        for pt in self.circuit.parts:
-            n, kind = pt.comp.name, pt.comp.kind
-            if kind == 'directional_valve':
-                out.append((n, sig(f'{n}.opening'), None))
-            elif kind == 'cylinder':
-                out.append((n, sig(f'{n}.position'), sig(f'{n}.velocity')))
-            elif kind == 'motor':
-                out.append((n, sig(f'{n}.speed'), None))
-        return out
-
     def joints(self) -> tuple[list[str], list[float], list[float]]:
         """Names, positions and velocities of the circuit's joints (valve spools as
         openings, cylinders, motors as speeds) at the last :meth:`outputs`."""
         y = self._y
-        return ([j[0] for j in self._joints], [float(y[j[1]]) for j in self._joints],
+        return ([j[0] for j in self._joints],
+                [float(y[j[1]]) if j[1] is not None else 0.0 for j in self._joints],
                 [float(y[j[2]]) if j[2] is not None else 0.0 for j in self._joints])
 
 

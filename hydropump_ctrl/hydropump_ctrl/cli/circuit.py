@@ -99,7 +99,7 @@ def cmd_circuit(args) -> int:
     m = circuit.measured()
     if control is None:
         control = 'margin' if ('ls_pressure' in m or 'load_pressure' in m) and \
-            circuit.pump() is not None and circuit.pump().comp.kind == 'pump' else 'open'
+            circuit.electric_pump() else 'open'
     if control != 'margin' and (args.algorithm or (args.margin is not None and control == 'open')):
         raise UsageError(f'--algorithm and --margin go with --control margin (not {control})')
     run = run_circuit(circuit, duration, inputs, control=control, algorithm=args.algorithm,

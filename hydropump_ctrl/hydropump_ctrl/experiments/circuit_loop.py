@@ -104,17 +104,16 @@ def controller_config(circuit: Circuit, eq=None, config: ControllerConfig | None
         values['controller.mode'] = 'margin'  # what a load-sensing circuit's pump runs
         # The compensators' setting (the highest): below it the loads starve. Post
         # compensators leave the metering edges the margin less their spring.
-        settings = [pt.comp.params.dp_set for pt in circuit.kinds('pre_compensator')]
-        settings += [config.reference.margin - pt.comp.params.dp_set
-                     for pt in circuit.kinds('post_compensator')]
+        settings = [pt.comp.metering_drop(config.reference.margin)
+                    for pt in circuit.role('compensator')]
         if settings:
             values['model.dp_compensator'] = max(settings)
-        reliefs = [pt.comp.params for pt in circuit.kinds('relief')
-                   if pt.comp.ports['in'][0] == node]
+        reliefs = [pt.comp.relief_law() for pt in circuit.role('pressure_limit')
+                   if pt.comp.relief_law() and pt.comp.ports['in'][0] == node]
         if reliefs:
-            r = min(reliefs, key=lambda r: r.p_crack)
-            values.update({'model.relief_crack': r.p_crack, 'model.relief_full': r.p_full,
-                           'model.relief_q_full': r.q_full})
+            crack, full, q_full = min(reliefs)
+            values.update({'model.relief_crack': crack, 'model.relief_full': full,
+                           'model.relief_q_full': q_full})
         model = {**dataclasses.asdict(config.model), 'C_l': values['model.C_l']}
         values['pi.margin.p'], values['pi.margin.i'] = pi_margin_compensated_tuning(
             model, config.period)
@@ -141,7 +140,7 @@ def start_current(circuit: Circuit, eq, share: float = 1.0) -> float:
     pump = circuit.pump()
     plant = pump.comp.params.plant
     n = pump.comp.name
-    surplus = sum(eq[f'{pt.comp.name}.flow'] for pt in circuit.kinds('relief'))
+    surplus = sum(eq[f'{pt.comp.name}.flow'] for pt in circuit.role('pressure_limit'))
     q = share * max(eq[f'{n}.q_l'] - surplus, 0.0)
     speed = eq.u[circuit.input_index(f'{n}.shaft_speed')]
     disp = q / (plant.pump.V_p * speed)
@@ -195,7 +194,7 @@ def run_circuit(circuit: Circuit, duration: float,
     t = np.arange(n + 1) * dt
     U = input_table(circuit, np.maximum(np.arange(-n0, n + 1) * dt, 0.0), inputs, dt)
     pump = circuit.pump()
-    cur = f'{pump.comp.name}.current' if pump is not None and pump.comp.kind == 'pump' else None
+    cur = f'{pump.comp.name}.current' if circuit.electric_pump() else None
     sim = CircuitSimulator(circuit, dt)
     eq = equilibrium(circuit, U[0])
     sim.x, sim.u[:] = eq.x.copy(), eq.u

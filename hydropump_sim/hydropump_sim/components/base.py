@@ -11,13 +11,20 @@ one). It declares, as class attributes,
   scenario files or the simulator node) and its output signals;
 - ``kernel``: its equations, a numba function
 
-  ``kernel(t, x, dx, u, p, y, P, Q)``
+  ``kernel(t, x, dx, u, p, y, P, Q, V)``
 
   of the time ``t`` [s], its own states ``x`` (writing their rates into ``dx``), its inputs
   ``u``, its packed parameters ``p`` (the node index of each port first, then
   :meth:`Component.pack`), writing its signals into ``y``. ``P`` holds the pressure of every
   node [Pa gauge]; the kernel *adds* the flow it delivers into each port's node to ``Q``
-  [m^3/s] (negative for a flow it takes). It must not read or write anything else.
+  [m^3/s] (negative for a flow it takes), and may add to ``V`` a volume [m^3] at a port's
+  node that depends on its states (a cylinder chamber's ``A x``; the constant volumes of
+  :meth:`Component.volumes` are there already). It must not read or write anything else;
+- what it is to the rest of the suite, so that nothing outside it branches on its kind:
+  ``ROLES`` (see :data:`ROLES`), ``MEASURES`` (the suite's measured signals it gives),
+  ``LOAD_SIGNALS`` (the topics of a load), ``JOINTS`` (its ``joint_states`` entries),
+  ``PLANT_INPUTS`` (its inputs are the operating point the simulator holds, not an
+  operator's), and :meth:`Component.pressure_cap` (the highest pressure it can make).
 
 and may override the methods below: its states (which can depend on its parameters, e.g. a
 lag that is off), the volume it adds to a port's node, a pressure it fixes, its start
@@ -89,6 +96,28 @@ class SignalSpec:
     desc: str
 
 
+@dataclass(frozen=True)
+class JointSpec:
+    """A ``joint_states`` entry: its name after the component's (``''``: the component's
+    own), and the signals of its position and velocity (``None``: not published, 0)."""
+
+    suffix: str
+    position: str | None
+    velocity: str | None
+
+
+#: The roles a component may declare, and what each means to the suite.
+ROLES = {
+    'pump': "the circuit's pump: its flow and pressures are the suite's pump signals",
+    'electric': 'a pump driven by the solenoid current (the current command reaches it)',
+    'load': 'a load the simulator publishes (LOAD_SIGNALS) beside the pump',
+    'actuator': 'a cylinder or motor: moves a load, its force or torque an input',
+    'ls_sensor': 'gives the load-sensing pressure, what a margin is held against',
+    'compensator': 'holds a pressure difference dp_set across a metering edge',
+    'pressure_limit': 'limits a pressure (relief, cut-off): its flow counts as relieved',
+}
+
+
 @dataclass
 class Expansion:
     """What a composite component is made of.
@@ -118,6 +147,18 @@ class Component:
     #: Its ports are joined by a passage the oil can return through (a valve); an actuator
     #: is not one: what it takes at ``a`` it gives at ``b``, which must drain elsewhere.
     PASSAGE: ClassVar[bool] = True
+    #: Names from :data:`ROLES`.
+    ROLES: ClassVar[frozenset[str]] = frozenset()
+    #: The suite's measured signals it gives (``hydropump_sim.measure.SIGNALS`` names, and
+    #: ``ls_pressure``) -> its own signal.
+    MEASURES: ClassVar[Mapping[str, str]] = {}
+    #: A load's topics (``pressure``, ``flow``, ``position``, ``velocity``, ``speed``) -> its
+    #: own signal.
+    LOAD_SIGNALS: ClassVar[Mapping[str, str]] = {}
+    JOINTS: ClassVar[tuple[JointSpec, ...]] = ()
+    #: Its inputs are the operating point the simulator holds (the pump's current and
+    #: speed, the paper load's pressure), not an operator's or a duty cycle's.
+    PLANT_INPUTS: ClassVar[bool] = False
 
     def __init__(self, name: str, params: Any, ports: Mapping[str, list[str]],
                  fluid: Any = None):
@@ -178,6 +219,23 @@ class Component:
         if isinstance(spec.default, str):
             return float(getattr(self.params, spec.default))
         return float(spec.default)
+
+    def pressure_cap(self, u: Mapping[str, float]) -> float | None:
+        """The highest pressure [Pa gauge] this component can make at a node with inputs
+        ``u`` (a relief's full-flow pressure, a cut-off's setting, a held source, a load's
+        force over its area), or ``None``: no circuit pressure may exceed the highest of
+        them (the invariants of :mod:`hydropump_sim.invariants`)."""
+        return None
+
+    def relief_law(self) -> tuple[float, float, float] | None:
+        """A relief's ``(p_crack, p_full, q_full)`` [Pa, Pa, m^3/s] (role
+        ``pressure_limit``), for a controller's model of where the pump's flow goes."""
+        return None
+
+    def metering_drop(self, margin: float) -> float | None:
+        """A compensator's drop [Pa] across its section's metering edge under a load-sensing
+        ``margin`` [Pa] (role ``compensator``)."""
+        return None
 
     def pressure_guess(self, u: Mapping[str, float]) -> dict[str, float]:
         """Pressures [Pa] this component expects at its ports in a steady state (a load

@@ -14,7 +14,7 @@ from .orifice import coefficient
 
 
 @jit
-def kernel(t, x, dx, u, p, y, P, Q):
+def kernel(t, x, dx, u, p, y, P, Q, V):
     a, b = int(p[0]), int(p[1])
     dp = P[a] - P[b]
     s = clip01((dp - p[3]) / (p[4] - p[3]))

@@ -19,12 +19,12 @@ import numpy as np
 
 from ..jitcache import jit
 from ..schema import fmt, spec
-from .base import Component, InputSpec, PortSpec, SignalSpec, StateSpec
+from .base import Component, InputSpec, JointSpec, PortSpec, SignalSpec, StateSpec
 from .laws import stop_force
 
 
 @jit
-def kernel(t, x, dx, u, p, y, P, Q):
+def kernel(t, x, dx, u, p, y, P, Q, V):
     a, b = int(p[0]), int(p[1])
     A_a, A_b, m, c, F_c, v_eps, L, k_stop, c_stop = (p[2], p[3], p[4], p[5], p[6], p[7],
                                                      p[8], p[9], p[10])
@@ -86,6 +86,14 @@ class Cylinder(Component):
                SignalSpec('force', 'N', 'external force'))
     kernel = kernel
     PASSAGE = False
+    ROLES = frozenset({'actuator'})
+    JOINTS = (JointSpec('', 'position', 'velocity'),)
+
+    def pressure_cap(self, u):
+        """The load's force over the area it pushes on."""
+        r = self.params
+        f = u['force']
+        return f / r.A_a if f >= 0.0 or r.A_b <= 0.0 else -f / r.A_b
 
     def states(self):
         r = self.params

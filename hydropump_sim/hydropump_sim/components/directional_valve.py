@@ -20,7 +20,7 @@ import numpy as np
 
 from ..jitcache import jit
 from ..schema import spec
-from .base import Component, InputSpec, PortSpec, SignalSpec, StateSpec
+from .base import Component, InputSpec, JointSpec, PortSpec, SignalSpec, StateSpec
 from .laws import clip01, lag, sroot
 from .orifice import coefficient
 
@@ -34,7 +34,7 @@ def metering(k, s, dp, dp_cr):
 
 
 @jit
-def kernel(t, x, dx, u, p, y, P, Q):
+def kernel(t, x, dx, u, p, y, P, Q, V):
     a, b = int(p[0]), int(p[1])
     k, dp_cr, tau = p[5], p[6], p[7]
     cmd = clip01(u[0])
@@ -92,6 +92,7 @@ class DirectionalValve(Component):
                SignalSpec('opening', '-', 'spool opening 0..1'),
                SignalSpec('dp', 'Pa', 'metering pressure drop'))
     kernel = kernel
+    JOINTS = (JointSpec('', 'opening', None),)
 
     def static_values(self):
         """Its lag off: the opening follows its target at once."""

@@ -28,7 +28,7 @@ from .base import Component, InputSpec, PortSpec, SignalSpec
 
 
 @jit
-def kernel(t, x, dx, u, p, y, P, Q):
+def kernel(t, x, dx, u, p, y, P, Q, V):
     out, ls = int(p[0]), int(p[1])
     margin = p[2]
     q = p[3:]
@@ -59,6 +59,9 @@ class LsPump(Component):
     INPUTS = (InputSpec('shaft_speed', 'Hz', 'shaft frequency', 1.0, 100.0, 'f_p'),)
     SIGNALS = (SignalSpec('margin', 'Pa', 'P_l - P_LS'),) + pump.Pump.SIGNALS[1:]
     kernel = kernel
+    ROLES = frozenset({'pump'})
+    MEASURES = {k: v for k, v in pump.Pump.MEASURES.items() if k != 'solenoid_current'}
+    PLANT_INPUTS = True
     PLANT_PARAMS = True
     P_OFFSET = 3  # the ports out and ls, the margin
 

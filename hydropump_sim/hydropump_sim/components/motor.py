@@ -14,11 +14,11 @@ import numpy as np
 
 from ..jitcache import jit
 from ..schema import spec
-from .base import Component, InputSpec, PortSpec, SignalSpec, StateSpec
+from .base import Component, InputSpec, JointSpec, PortSpec, SignalSpec, StateSpec
 
 
 @jit
-def kernel(t, x, dx, u, p, y, P, Q):
+def kernel(t, x, dx, u, p, y, P, Q, V):
     a, b = int(p[0]), int(p[1])
     D, J, c, T_c, w_eps, G = p[2], p[3], p[4], p[5], p[6], p[7]
     w = x[0]
@@ -61,6 +61,12 @@ class Motor(Component):
                SignalSpec('torque', 'N m', 'load torque'))
     kernel = kernel
     PASSAGE = False
+    ROLES = frozenset({'actuator'})
+    JOINTS = (JointSpec('', None, 'speed'),)
+
+    def pressure_cap(self, u):
+        """The load torque over the displacement."""
+        return abs(u['torque']) / self.params.D
 
     def states(self):
         return (StateSpec('speed', 'rad/s', 100.0),)

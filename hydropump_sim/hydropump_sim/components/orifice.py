@@ -17,7 +17,7 @@ from .laws import sroot
 
 
 @jit
-def kernel(t, x, dx, u, p, y, P, Q):
+def kernel(t, x, dx, u, p, y, P, Q, V):
     a, b = int(p[0]), int(p[1])
     dp = P[a] - P[b]
     q = p[2] * u[0] * sroot(dp, p[3])

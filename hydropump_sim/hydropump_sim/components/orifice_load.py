@@ -22,7 +22,7 @@ def load_flow(P, P_u, xi, mu, dp_cr, gamma):
 
 
 @jit
-def kernel(t, x, dx, u, p, y, P, Q):
+def kernel(t, x, dx, u, p, y, P, Q, V):
     a = int(p[0])
     q = load_flow(P[a], u[0], u[1], p[1], p[2], p[3])
     Q[a] -= q
@@ -56,6 +56,13 @@ class OrificeLoad(Component):
                SignalSpec('dp', 'Pa', 'pressure drop across the orifice'))
     kernel = kernel
     EXTERNAL_RETURN = True
+    ROLES = frozenset({'load'})
+    MEASURES = {'load_flow': 'flow', 'load_pressure': 'load_pressure'}
+    LOAD_SIGNALS = {'pressure': 'load_pressure', 'flow': 'flow'}
+    PLANT_INPUTS = True
+
+    def pressure_cap(self, u):
+        return u['load_pressure']  # the held pressure pushes back when the line is below it
 
     def pack(self):
         r = self.params

@@ -19,7 +19,7 @@ from .pre_compensator import CompensatorParams, spool_start, spool_state
 
 
 @jit
-def kernel(t, x, dx, u, p, y, P, Q):
+def kernel(t, x, dx, u, p, y, P, Q, V):
     a, b, c = int(p[0]), int(p[1]), int(p[2])
     k, dp_set, p_band, tau, dp_cr = p[3], p[4], p[5], p[6], p[7]
     held = P[a] - P[c]
@@ -47,6 +47,11 @@ class PostCompensator(Component):
                SignalSpec('opening', '-', 'spool opening 0..1'),
                SignalSpec('dp', 'Pa', 'P_in - P_ls'))
     kernel = kernel
+    ROLES = frozenset({'compensator'})
+
+    def metering_drop(self, margin: float) -> float:
+        """The drop [Pa] its section's metering edge sees: the margin less its spring."""
+        return margin - self.params.dp_set
 
     def static_values(self):
         """Its lag off: the opening follows its target at once."""

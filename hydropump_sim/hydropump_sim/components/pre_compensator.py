@@ -26,7 +26,7 @@ from .orifice import coefficient
 
 
 @jit
-def kernel(t, x, dx, u, p, y, P, Q):
+def kernel(t, x, dx, u, p, y, P, Q, V):
     a, b, c = int(p[0]), int(p[1]), int(p[2])
     k, dp_set, p_band, tau, dp_cr = p[3], p[4], p[5], p[6], p[7]
     held = P[b] - P[c]
@@ -72,6 +72,11 @@ class PreCompensator(Component):
                SignalSpec('opening', '-', 'spool opening 0..1'),
                SignalSpec('dp', 'Pa', 'held drop P_out - P_sense'))
     kernel = kernel
+    ROLES = frozenset({'compensator'})
+
+    def metering_drop(self, margin: float) -> float:
+        """The drop [Pa] it holds across its section's metering edge."""
+        return self.params.dp_set
 
     def static_values(self):
         """Its lag off: the opening follows its target at once."""

@@ -9,7 +9,7 @@ from .base import Component, InputSpec, PortSpec, SignalSpec
 
 
 @jit
-def kernel(t, x, dx, u, p, y, P, Q):
+def kernel(t, x, dx, u, p, y, P, Q, V):
     y[0] = P[int(p[0])]
 
 
@@ -28,6 +28,9 @@ class PressureSource(Component):
     SIGNALS = (SignalSpec('pressure', 'Pa', 'source pressure'),
                SignalSpec('flow', 'm^3/s', 'net flow into the source'))
     kernel = kernel
+
+    def pressure_cap(self, u):
+        return u['pressure']
 
     def fixed_pressure(self):
         return ('node', 'input', 'pressure')

@@ -24,7 +24,7 @@ from .orifice import coefficient
 
 
 @jit
-def kernel(t, x, dx, u, p, y, P, Q):
+def kernel(t, x, dx, u, p, y, P, Q, V):
     a, cf, ef, ls = int(p[0]), int(p[1]), int(p[2]), int(p[3])
     k_cf, k_ef, dp_set, p_band, tau, dp_cr = p[4], p[5], p[6], p[7], p[8], p[9]
     held = P[cf] - P[ls]

@@ -286,7 +286,7 @@ U_CURRENT, U_SPEED = 0, 1
 
 
 @jit
-def kernel(t, x, dx, u, p, y, P, Q):
+def kernel(t, x, dx, u, p, y, P, Q, V):
     """The pump in a circuit: ``u = [I_s (absolute, clamped to eq. 2), f_p]``."""
     out = int(p[C_OUT])
     q = p[C_P:]
@@ -329,6 +329,11 @@ class Pump(Component):
               InputSpec('shaft_speed', 'Hz', 'shaft frequency', 1.0, 100.0, 'f_p'))
     SIGNALS = tuple(SignalSpec(*s) for s in SIGNAL_UNITS)
     kernel = kernel
+    ROLES = frozenset({'pump', 'electric'})
+    MEASURES = {'pump_flow': 'Q_p', 'line_flow': 'q_l', 'actuator_pressure': 'P_a',
+                'line_pressure': 'P_l', 'spool_position': 'x_c', 'actuator_position': 'x_a',
+                'solenoid_current': 'current'}
+    PLANT_INPUTS = True
     #: Its parameters start from the circuit's plant params file.
     PLANT_PARAMS = True
     #: Where the pump's ``P_*`` layout starts in its packed vector.

@@ -42,7 +42,7 @@ def static_flow(dp, p_crack, p_full, q_full):
 
 
 @jit
-def kernel(t, x, dx, u, p, y, P, Q):
+def kernel(t, x, dx, u, p, y, P, Q, V):
     a, b = int(p[0]), int(p[1])
     p_crack, p_full, q_full, tau = p[2], p[3], p[4], p[5]
     dp = P[a] - P[b]
@@ -83,6 +83,17 @@ class Relief(Component):
                SignalSpec('opening', '-', 'poppet opening 0..1'),
                SignalSpec('pressure', 'Pa', 'pressure at the inlet'))
     kernel = kernel
+    ROLES = frozenset({'pressure_limit'})
+
+    def pressure_cap(self, u):
+        """Full flow at ``p_full``, and one more regulation range (``p_full - p_crack``)
+        for the poppet's lag and a flow beyond ``q_full``."""
+        r = self.params
+        return 2.0 * r.p_full - r.p_crack
+
+    def relief_law(self):
+        r = self.params
+        return r.p_crack, r.p_full, r.q_full
 
     def static_values(self):
         """Its lag off: the opening follows its target at once."""

@@ -22,7 +22,7 @@ from .orifice import coefficient
 
 
 @jit
-def kernel(t, x, dx, u, p, y, P, Q):
+def kernel(t, x, dx, u, p, y, P, Q, V):
     out, tank, n = int(p[0]), int(p[1]), int(p[2])
     k, k_b, dp_cr = p[3 + n], p[4 + n], p[5 + n]
     total = 0.0
@@ -70,6 +70,8 @@ class ShuttleNetwork(Component):
                SignalSpec('flow', 'm^3/s', 'flow from the inputs into the line'),
                SignalSpec('bleed', 'm^3/s', 'bleed flow to tank'))
     kernel = kernel
+    ROLES = frozenset({'ls_sensor'})
+    MEASURES = {'ls_pressure': 'pressure'}
 
     def pack(self):
         r = self.params

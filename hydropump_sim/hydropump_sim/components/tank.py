@@ -9,7 +9,7 @@ from .base import Component, PortSpec, SignalSpec
 
 
 @jit
-def kernel(t, x, dx, u, p, y, P, Q):
+def kernel(t, x, dx, u, p, y, P, Q, V):
     y[0] = P[int(p[0])]
 
 
@@ -26,6 +26,9 @@ class Tank(Component):
     SIGNALS = (SignalSpec('pressure', 'Pa', 'tank pressure'),
                SignalSpec('flow', 'm^3/s', 'net flow returning into the tank'))
     kernel = kernel
+
+    def pressure_cap(self, u):
+        return self.params.pressure
 
     def fixed_pressure(self):
         return ('node', 'param', 'pressure')

@@ -17,7 +17,7 @@ from .base import Component, PortSpec, SignalSpec
 
 
 @jit
-def kernel(t, x, dx, u, p, y, P, Q):
+def kernel(t, x, dx, u, p, y, P, Q, V):
     y[0] = P[int(p[0])]
 
 
