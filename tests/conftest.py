@@ -12,6 +12,9 @@ REFERENCE_YAML = ROOT / 'tests' / 'data' / 'pump_reference.yaml'
 
 # Every test process keeps DDS discovery on loopback.
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+# Every offline circuit run of the suite proves the physical invariants
+# (hydropump_sim.invariants): a run that breaks one raises.
+os.environ['HYDROPUMP_STRICT_INVARIANTS'] = '1'
 
 
 @pytest.fixture(scope='session')

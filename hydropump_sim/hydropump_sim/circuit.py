@@ -621,6 +621,7 @@ def _layout(comps: list[Component], composites: dict[str, Expansion], fluid: Flu
                           'needs one (a volume component, or a chamber of a cylinder or '
                           'motor) or a component that fixes it (a tank)')
     errors += _return_paths(comps, nodes, fixed, users)
+    errors += _pressure_limits(comps)
     if errors:
         raise CircuitError(errors, source)
     # States: components', then one pressure per node with a volume.
@@ -747,6 +748,17 @@ def _return_paths(comps: list[Component], nodes: list[str], fixed: dict, users: 
     return [f'node {n} ({", ".join(users[n])}): no return path to a tank or a pressure '
             'source: the oil delivered there has nowhere to go' for n in nodes
             if n not in reached]
+
+
+def _pressure_limits(comps: list[Component]) -> list[str]:
+    """A pump needs something to limit the pressure it can make: a relief valve in the
+    circuit or a cut-off of its own."""
+    if any('pressure_limit' in c.ROLES for c in comps):
+        return []
+    return [f'{c.name}: nothing limits the pressure this pump can make: add a relief valve '
+            '(type relief) at its outlet or give it a pressure cut-off (cutoff.p_set)'
+            for c in comps if 'pump' in c.ROLES
+            and c.pressure_cap({s.name: 0.0 for s in c.INPUTS}) is None]
 
 
 def _pattern(circuit: Circuit, node_states: dict[str, int]) -> np.ndarray:

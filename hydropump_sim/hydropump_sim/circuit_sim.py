@@ -19,6 +19,7 @@ import numpy as np
 from scipy import optimize
 
 from . import integrator as ig
+from . import invariants
 from .circuit import Circuit, CircuitError, N_FLUID, NODE_PREFIX
 from .errors import HydropumpError, InputError
 from .files import replacing
@@ -67,6 +68,8 @@ class CircuitResult:
     x: np.ndarray
     u: np.ndarray
     stats: dict = field(default_factory=dict)
+    #: The physical invariants this run broke (:mod:`hydropump_sim.invariants`).
+    violations: list = field(default_factory=list)
 
     def __getitem__(self, name: str) -> np.ndarray:
         return self.y[:, self.circuit.signal_index(name)]
@@ -158,8 +161,12 @@ def simulate_circuit(circuit: Circuit, duration: float,
     run_model(circuit.stepper_model(), x0[None].copy(), dt, U, circuit.p[None],
               config.rtol if rtol is None else rtol, config, decim, Y, X, stats, t0)
     U_out = np.vstack([U[::decim], U[-1:]])
-    return CircuitResult(circuit, np.arange(n_out + 1) * dt_out, Y[0], X[0], U_out,
-                         {'accepted': int(stats[0]), 'rejected': int(stats[1])})
+    res = CircuitResult(circuit, np.arange(n_out + 1) * dt_out, Y[0], X[0], U_out,
+                        {'accepted': int(stats[0]), 'rejected': int(stats[1])})
+    res.violations = invariants.check(circuit, res.t, res.y, res.u)
+    if res.violations and invariants.strict():
+        raise invariants.InvariantError(res.violations)
+    return res
 
 
 class CircuitSimulator:

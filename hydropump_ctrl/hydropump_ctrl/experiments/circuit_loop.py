@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hydropump_sim import invariants
 from hydropump_sim.circuit import Circuit, CircuitError
 from hydropump_sim.circuit_analysis import line_capacitance
 from hydropump_sim.circuit_sim import CircuitSimulator, equilibrium, input_table
@@ -245,6 +246,9 @@ def run_circuit(circuit: Circuit, duration: float,
             Uo[j] = sim.u
         if j < n:
             sim.step()
+    violations = invariants.check(circuit, t, Y, Uo)
+    if violations and invariants.strict():
+        raise invariants.InvariantError(violations)
     return CircuitRun(circuit, t, Y, Uo, control, ctrl.algorithm if ctrl else None, margin,
                       np.array(t_ctrl), {k: np.array(v) for k, v in meas_log.items()},
-                      {'config': cfg if ctrl is not None else None})
+                      {'config': cfg if ctrl is not None else None, 'violations': violations})

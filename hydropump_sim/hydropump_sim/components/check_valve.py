@@ -1,7 +1,10 @@
 """Check valve from ``in`` to ``out``: closed below the cracking pressure difference, fully
-open from ``p_full`` on, never backwards:
+open from ``p_full`` on; backwards only its seat's leakage:
 
     s = clip((dp - p_crack) / (p_full - p_crack), 0, 1),   Q = C_d A s sqrt(2/rho) sroot(dp)
+                                                           + G_leak dp
+An anti-cavitation (make-up) check is one with a low crack pressure from tank to a motor or
+cylinder line.
 """
 
 from dataclasses import dataclass
@@ -9,7 +12,7 @@ from dataclasses import dataclass
 from ..jitcache import jit
 from ..schema import fmt, spec
 from .base import Component, PortSpec, SignalSpec
-from .laws import clip01, sroot
+from .laws import clip01, G_LEAK_POPPET, sroot
 from .orifice import coefficient
 
 
@@ -19,10 +22,12 @@ def kernel(t, x, dx, u, p, y, P, Q, V):
     dp = P[a] - P[b]
     s = clip01((dp - p[3]) / (p[4] - p[3]))
     q = p[2] * s * sroot(dp, p[5]) if s > 0.0 else 0.0
+    q += p[6] * dp
     Q[a] -= q
     Q[b] += q
     y[0] = q
     y[1] = s
+    y[2] = q * dp
 
 
 @dataclass(frozen=True)
@@ -33,6 +38,8 @@ class CheckParams:
     p_full: float = spec('Pa', 'pressure difference of full opening', 1.0e3, 1.0e7,
                          default=3.0e5)
     dp_cr: float = spec('Pa', 'laminar/turbulent transition', 0.0, 1.0e6, default=1.0e4)
+    G_leak: float = spec('m^3/(s Pa)', 'leakage of the closed seat', 0.0, 1.0e-9,
+                         default=G_LEAK_POPPET)
 
     def cross_checks(self):
         if self.p_full <= self.p_crack:
@@ -47,9 +54,11 @@ class CheckValve(Component):
     Params = CheckParams
     PORTS = (PortSpec('in', 'inlet'), PortSpec('out', 'outlet'))
     SIGNALS = (SignalSpec('flow', 'm^3/s', 'flow in -> out'),
-               SignalSpec('opening', '-', 'opening 0..1'))
+               SignalSpec('opening', '-', 'opening 0..1'),
+               SignalSpec('loss', 'W', 'power dissipated'))
     kernel = kernel
 
     def pack(self):
         r = self.params
-        return [coefficient(r.C_d, r.A, self.fluid.rho), r.p_crack, r.p_full, r.dp_cr]
+        return [coefficient(r.C_d, r.A, self.fluid.rho), r.p_crack, r.p_full, r.dp_cr,
+                r.G_leak]

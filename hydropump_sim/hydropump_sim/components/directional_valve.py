@@ -1,14 +1,19 @@
 """Proportional directional valve, meter-in (the operator's lever or joystick): the metering
 edge from ``in`` (P) to ``out`` (A) opens with the command ``xi`` (0..1) through a
-first-order spool lag, and a load-holding check stops reverse flow:
+first-order spool lag:
 
-    tau dxi_s/dt = xi - xi_s,     Q = C_d A_max xi_s sqrt(2/rho) sroot(max(P_in - P_out, 0))
+    tau dxi_s/dt = xi - xi_s,     Q = C_d A_max xi_s sqrt(2/rho) sroot(P_in - P_out) + G_leak dp
 
-With ``tau = 0`` the spool follows the command at once. The spool also switches the
-section's load-sensing signal, as a valve section of a load-sensing block does: the node at
-``ls`` is connected to the work port through a small passage while the spool is open and
-drained to ``drain`` while it is closed, so an idle section's trapped load pressure is never
-sensed (``ls_from`` takes the signal elsewhere, e.g. the load behind a post compensator):
+The edge passes flow both ways and leaks ``G_leak`` (a spool's clearance) when closed.
+``check`` puts the section's load-holding check in series (the P-channel check of a
+load-sensing valve section): no reverse flow through the edge then, only the seat's
+leakage ``G_LEAK_POPPET dp``. With ``tau = 0`` the spool follows the command at once.
+
+The spool also switches the section's load-sensing signal, as a valve section of a
+load-sensing block does: the node at ``ls`` is connected to the work port through a small
+passage while the spool is open and drained to ``drain`` while it is closed, so an idle
+section's trapped load pressure is never sensed (``ls_from`` takes the signal elsewhere,
+e.g. the load behind a post compensator):
 
     g = clip(xi_s / ls_open, 0, 1)    (the passage switches early in the spool's travel)
     Q_ls = k_ls g sroot(P_out - P_ls),     Q_drain = k_ls (1 - g) sroot(P_ls - P_drain)
@@ -21,16 +26,8 @@ import numpy as np
 from ..jitcache import jit
 from ..schema import spec
 from .base import Component, InputSpec, JointSpec, PortSpec, SignalSpec, StateSpec
-from .laws import clip01, lag, sroot
+from .laws import clip01, edge, G_LEAK_POPPET, G_LEAK_SPOOL, lag, sroot
 from .orifice import coefficient
-
-
-@jit
-def metering(k, s, dp, dp_cr):
-    """Flow of a metering edge of coefficient ``k`` at opening ``s``, forward only."""
-    if s <= 0.0 or dp <= 0.0:
-        return 0.0
-    return k * s * sroot(dp, dp_cr)
 
 
 @jit
@@ -44,24 +41,33 @@ def kernel(t, x, dx, u, p, y, P, Q, V):
     else:
         s = cmd
     dp = P[a] - P[b]
-    q = metering(k, s, dp, dp_cr)
+    if dp < 0.0 and p[11] > 0.0:
+        q = G_LEAK_POPPET * dp  # the load-holding check is shut
+    else:
+        q = edge(k, s, dp, dp_cr, p[10])
     Q[a] -= q
     Q[b] += q
+    loss = q * dp
     ls, drain, src, k_ls = int(p[2]), int(p[3]), int(p[4]), p[8]
     if src < 0:
         src = b
     if ls >= 0:
         g = clip01(s / p[9])
-        q_s = k_ls * g * sroot(P[src] - P[ls], dp_cr)
+        dp_s = P[src] - P[ls]
+        q_s = k_ls * g * sroot(dp_s, dp_cr)
         Q[src] -= q_s
         Q[ls] += q_s
+        loss += q_s * dp_s
         if drain >= 0:
-            q_d = k_ls * (1.0 - g) * sroot(P[ls] - P[drain], dp_cr)
+            dp_d = P[ls] - P[drain]
+            q_d = k_ls * (1.0 - g) * sroot(dp_d, dp_cr)
             Q[ls] -= q_d
             Q[drain] += q_d
+            loss += q_d * dp_d
     y[0] = q
     y[1] = s
     y[2] = dp
+    y[3] = loss
 
 
 @dataclass(frozen=True)
@@ -76,6 +82,10 @@ class ValveParams:
                        default=1.0e-6)
     ls_open: float = spec('-', 'spool opening at which the load-sensing passage is fully '
                           'switched from drain to the work port', 1.0e-3, 1.0, default=0.05)
+    G_leak: float = spec('m^3/(s Pa)', "leakage of the closed edge (a spool's clearance: 0.1 "
+                         'L/min at 100 bar)', 0.0, 1.0e-9, default=G_LEAK_SPOOL)
+    check: bool = spec('-', "the section's load-holding check in series: no reverse flow",
+                       default=True)
 
 
 class DirectionalValve(Component):
@@ -90,7 +100,8 @@ class DirectionalValve(Component):
     INPUTS = (InputSpec('command', '-', 'valve command 0..1', 0.0, 1.0, 'command'),)
     SIGNALS = (SignalSpec('flow', 'm^3/s', 'metered flow P -> A'),
                SignalSpec('opening', '-', 'spool opening 0..1'),
-               SignalSpec('dp', 'Pa', 'metering pressure drop'))
+               SignalSpec('dp', 'Pa', 'metering pressure drop'),
+               SignalSpec('loss', 'W', 'power dissipated in the edge and the LS passage'))
     kernel = kernel
     JOINTS = (JointSpec('', 'opening', None),)
 
@@ -105,7 +116,7 @@ class DirectionalValve(Component):
         r = self.params
         rho = self.fluid.rho
         return [coefficient(r.C_d, r.A_max, rho), r.dp_cr, r.tau, coefficient(r.C_d, r.A_ls, rho),
-                r.ls_open]
+                r.ls_open, r.G_leak, float(r.check)]
 
     def initial_state(self, P, u):
         if self.params.tau <= 0.0:

@@ -31,8 +31,9 @@ from .base import Component, InputSpec, PortSpec, SignalSpec
 def kernel(t, x, dx, u, p, y, P, Q, V):
     out, ls = int(p[0]), int(p[1])
     margin = p[2]
-    q = p[3:]
-    error = margin - (P[out] - P[ls])
+    q = p[3:3 + pump.N_P]
+    error = margin - (P[out] - P[ls]) - pump.cutoff(P[out], p[3 + pump.N_P],
+                                                    p[4 + pump.N_P])
     n = x.shape[0]
     Q[out] += pump.pump_equations(t, x, dx, n - 1, P[out], error, u[0], q, y)
     y[pump.Y_IS] = P[out] - P[ls]
@@ -49,6 +50,7 @@ class LsSpool:
 class LsPumpSetup:
     plant: Params
     spool: LsSpool
+    cutoff: pump.Cutoff = pump.Cutoff()
 
 
 class LsPump(Component):
@@ -67,16 +69,18 @@ class LsPump(Component):
 
     @classmethod
     def build_params(cls, values: Mapping[str, Any], source: str | None = None):
+        values, cut = pump.split_cutoff(values, source)
         plant = {k: v for k, v in values.items() if not k.startswith('ls.')}
         own = {k[3:]: v for k, v in values.items() if k.startswith('ls.')}
-        return LsPumpSetup(params_from_dict(plant, source), build(LsSpool, own, source))
+        return LsPumpSetup(params_from_dict(plant, source), build(LsSpool, own, source), cut)
 
     @classmethod
     def param_specs(cls):
         from ..params import iter_specs
         from ..schema import specs_of
         return {**{s.name: s for s in iter_specs()},
-                **{f'ls.{s.name}': s for s in specs_of(LsSpool)}}
+                **{f'ls.{s.name}': s for s in specs_of(LsSpool)},
+                **{f'cutoff.{s.name}': s for s in specs_of(pump.Cutoff)}}
 
     def states(self):
         plant = self.params.plant.replace({'input.tau_s': 0.0})
@@ -90,7 +94,12 @@ class LsPump(Component):
         q[pump.P_KC] = sp.K_ls
         q[pump.P_DITHA] = 0.0
         q[pump.P_TAUS] = 0.0
-        return [sp.margin] + list(q)
+        cut = self.params.cutoff
+        return [sp.margin] + list(q) + [cut.p_set, 2.0 * sp.margin / cut.band]
+
+    def pressure_cap(self, u):
+        cut = self.params.cutoff
+        return cut.p_set + cut.band if cut.p_set > 0.0 else None
 
     def input_default(self, spec):
         return self.params.plant.pump.f_p

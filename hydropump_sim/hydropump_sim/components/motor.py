@@ -1,10 +1,13 @@
 """Hydraulic motor: displacement ``D`` per radian between ports ``a`` and ``b``, an inertia
 and a load torque (an input), viscous and Coulomb friction, laminar leakage:
 
-    J dw/dt = D (P_a - P_b) - T - c w - T_c tanh(w / w_eps)
+    J dw/dt = D (P_a - P_b) - T - c w - T_c tanh(w / w_eps),    dphi/dt = w
     Q = D w + G_leak (P_a - P_b)   (from a to b)
 
-Chamber and hose volumes are lumped into the port nodes (``V_a``, ``V_b``).
+Chamber and hose volumes are lumped into the port nodes (``V_a``, ``V_b``). The shaft angle
+``phi`` is an integrating state (a swing's heading), published as the joint's position.
+With both ports blocked a motor under a load torque creeps at its leakage over its
+displacement: a swing holds with its brake valves and its parking brake, not its valve.
 """
 
 from dataclasses import dataclass
@@ -24,7 +27,9 @@ def kernel(t, x, dx, u, p, y, P, Q, V):
     w = x[0]
     P_b = P[b] if b >= 0 else 0.0
     dp = P[a] - P_b
-    dx[0] = (D * dp - u[0] - c * w - T_c * math.tanh(w / w_eps)) / J
+    T_f = c * w + T_c * math.tanh(w / w_eps)
+    dx[0] = (D * dp - u[0] - T_f) / J
+    dx[1] = w
     q = D * w + G * dp
     Q[a] -= q
     if b >= 0:
@@ -33,6 +38,9 @@ def kernel(t, x, dx, u, p, y, P, Q, V):
     y[1] = P[a]
     y[2] = q
     y[3] = u[0]
+    y[4] = x[1]
+    y[5] = P_b
+    y[6] = T_f * w + G * dp * dp
 
 
 @dataclass(frozen=True)
@@ -58,18 +66,22 @@ class Motor(Component):
     SIGNALS = (SignalSpec('speed', 'rad/s', 'shaft speed'),
                SignalSpec('pressure', 'Pa', 'inlet pressure'),
                SignalSpec('flow', 'm^3/s', 'flow through the motor'),
-               SignalSpec('torque', 'N m', 'load torque'))
+               SignalSpec('torque', 'N m', 'load torque'),
+               SignalSpec('angle', 'rad', 'shaft angle'),
+               SignalSpec('pressure_b', 'Pa', 'outlet pressure'),
+               SignalSpec('loss', 'W', 'power dissipated: friction and leakage'))
     kernel = kernel
     PASSAGE = False
     ROLES = frozenset({'actuator'})
-    JOINTS = (JointSpec('', None, 'speed'),)
+    JOINTS = (JointSpec('', 'angle', 'speed'),)
 
     def pressure_cap(self, u):
         """The load torque over the displacement."""
         return abs(u['torque']) / self.params.D
 
     def states(self):
-        return (StateSpec('speed', 'rad/s', 100.0),)
+        return (StateSpec('speed', 'rad/s', 100.0),
+                StateSpec('angle', 'rad', 2.0 * math.pi, integrating=True))
 
     def pack(self):
         r = self.params
@@ -83,4 +95,4 @@ class Motor(Component):
         return {'a': max(u['torque'], 0.0) / self.params.D}
 
     def initial_state(self, P, u):
-        return np.array([0.0])
+        return np.array([0.0, 0.0])

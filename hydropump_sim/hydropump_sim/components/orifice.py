@@ -13,18 +13,19 @@ import math
 from ..jitcache import jit
 from ..schema import spec
 from .base import Component, InputSpec, PortSpec, SignalSpec
-from .laws import sroot
+from .laws import signed_root
 
 
 @jit
 def kernel(t, x, dx, u, p, y, P, Q, V):
     a, b = int(p[0]), int(p[1])
     dp = P[a] - P[b]
-    q = p[2] * u[0] * sroot(dp, p[3])
+    q = p[2] * u[0] * signed_root(dp, p[3])
     Q[a] -= q
     Q[b] += q
     y[0] = q
     y[1] = dp
+    y[2] = q * dp
 
 
 @dataclass(frozen=True)
@@ -48,7 +49,8 @@ class Orifice(Component):
     PORTS = (PortSpec('a', 'inlet'), PortSpec('b', 'outlet'))
     INPUTS = (InputSpec('aperture', '-', 'aperture 0..1', 0.0, 1.0, 'aperture'),)
     SIGNALS = (SignalSpec('flow', 'm^3/s', 'flow a -> b'),
-               SignalSpec('dp', 'Pa', 'pressure drop a - b'))
+               SignalSpec('dp', 'Pa', 'pressure drop a - b'),
+               SignalSpec('loss', 'W', 'power dissipated, dp q'))
     kernel = kernel
 
     def pack(self):

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..jitcache import jit
 from ..params import Params, params_from_dict
-from ..schema import ParamError
+from ..schema import build, ParamError, spec
 from .base import Component, InputSpec, PortSpec, SignalSpec, StateSpec
 from .laws import continuity, sroot, stop_force
 
@@ -286,23 +286,54 @@ U_CURRENT, U_SPEED = 0, 1
 
 
 @jit
+def cutoff(P_l, p_set, gain):
+    """The pressure cut-off's override of the pilot spool's command (in the command's
+    units), 0 below its setting ``p_set``; ``gain`` per pascal above it."""
+    if p_set <= 0.0 or P_l <= p_set:
+        return 0.0
+    return (P_l - p_set) * gain
+
+
+@jit
 def kernel(t, x, dx, u, p, y, P, Q, V):
     """The pump in a circuit: ``u = [I_s (absolute, clamped to eq. 2), f_p]``."""
     out = int(p[C_OUT])
-    q = p[C_P:]
+    q = p[C_P:C_P + N_P]
     lo = q[P_IMIN]
     current = min(max(u[U_CURRENT], lo), lo + 2.0 * q[P_IMAX])
+    over = cutoff(P[out], p[C_P + N_P], p[C_P + N_P + 1])
     n = x.shape[0]
-    Q[out] += pump_equations(t, x, dx, n - 1, P[out], current - (q[P_IMIN] + q[P_IMAX]),
+    Q[out] += pump_equations(t, x, dx, n - 1, P[out], current - over - (q[P_IMIN] + q[P_IMAX]),
                              u[U_SPEED], q, y)
+    y[Y_IS] += over  # the solenoid's own current: the cut-off acts on the spool
+
+
+@dataclass(frozen=True)
+class Cutoff:
+    """A pressure cut-off (the pressure compensator of a load-sensing pump): a spool that
+    destrokes the pump when its outlet pressure exceeds ``p_set``, overriding the pump's
+    command fully ``band`` above it."""
+
+    p_set: float = spec('Pa', 'cut-off pressure; 0 = none', 0.0, 6.0e7, default=0.0)
+    band: float = spec('Pa', 'pressure rise over p_set that destrokes the pump fully', 1.0e4,
+                       5.0e6, default=1.0e6)
 
 
 @dataclass(frozen=True)
 class PumpSetup:
-    """The pump component's parameters: a plant parameter set and the model to run."""
+    """The pump component's parameters: a plant parameter set, the model to run, its
+    pressure cut-off."""
 
     plant: Params
     model: str = 'fine'
+    cutoff: Cutoff = Cutoff()
+
+
+def split_cutoff(values: Mapping[str, Any], source: str | None) -> tuple[dict, Cutoff]:
+    """A pump's entries without its ``cutoff.*`` ones, and its :class:`Cutoff`."""
+    rest = {k: v for k, v in values.items() if not k.startswith('cutoff.')}
+    own = {k[len('cutoff.'):]: v for k, v in values.items() if k.startswith('cutoff.')}
+    return rest, build(Cutoff, own, source)
 
 
 SIGNAL_UNITS = (('current', 'A', 'solenoid current I_s (eq. 2)'),
@@ -341,17 +372,19 @@ class Pump(Component):
 
     @classmethod
     def build_params(cls, values: Mapping[str, Any], source: str | None = None) -> PumpSetup:
-        values = dict(values)
+        values, cut = split_cutoff(values, source)
         model = values.pop('model', 'fine')
         if model not in MODELS:
             raise ParamError([f'model = {model!r}: expected one of {", ".join(MODELS)}'],
                              source)
-        return PumpSetup(params_from_dict(values, source), model)
+        return PumpSetup(params_from_dict(values, source), model, cut)
 
     @classmethod
     def param_specs(cls):
         from ..params import iter_specs
-        return {s.name: s for s in iter_specs()}
+        from ..schema import specs_of
+        return {**{s.name: s for s in iter_specs()},
+                **{f'cutoff.{s.name}': s for s in specs_of(Cutoff)}}
 
     def states(self):
         plant = self.params.plant
@@ -363,7 +396,17 @@ class Pump(Component):
                      for n in state_names(plant, self.params.model))
 
     def pack(self):
-        return list(pack(self.params.plant, self.params.model))
+        return list(pack(self.params.plant, self.params.model)) + self.cutoff_pack()
+
+    def cutoff_pack(self) -> list[float]:
+        """The cut-off's setting and its gain: the full current range over its band."""
+        cut, plant = self.params.cutoff, self.params.plant
+        return [cut.p_set, 2.0 * plant.spool.I_max / cut.band]
+
+    def pressure_cap(self, u):
+        """A pump with a cut-off makes no more than its setting and band."""
+        cut = self.params.cutoff
+        return cut.p_set + cut.band if cut.p_set > 0.0 else None
 
     def static_values(self):
         """Eq. 10: the spool and the plate's inertia quasi-static (the paper's simplified
@@ -376,7 +419,7 @@ class Pump(Component):
 
     def steady_pack(self):
         return list(pack(self.params.plant.replace({'input.dither_amp': 0.0}),
-                         self.params.model))
+                         self.params.model)) + self.cutoff_pack()
 
     def input_default(self, spec):
         plant = self.params.plant
