@@ -165,7 +165,7 @@ def simulate_circuit(circuit: Circuit, duration: float,
                         {'accepted': int(stats[0]), 'rejected': int(stats[1])})
     res.violations = invariants.check(circuit, res.t, res.y, res.u)
     if res.violations and invariants.strict():
-        raise invariants.InvariantError(res.violations)
+        raise invariants.InvariantError(res.violations, circuit.name)
     return res
 
 

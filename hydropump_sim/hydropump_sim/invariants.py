@@ -24,6 +24,8 @@ import math
 
 import numpy as np
 
+from .errors import HydropumpError
+
 #: Allowed excess over the highest source pressure: 2 % and 1 bar (a step's overshoot of a
 #: relief's regulation, the numerics of a stiff node).
 CAP_MARGIN = (0.02, 1.0e5)
@@ -100,12 +102,14 @@ def check(circuit, t: np.ndarray, y: np.ndarray, u: np.ndarray) -> list[Violatio
     return out
 
 
-class InvariantError(RuntimeError):
+class InvariantError(HydropumpError, RuntimeError):
     """A run broke a physical invariant (raised where they are enforced)."""
 
-    def __init__(self, violations: list[Violation]):
-        self.violations = violations
-        super().__init__(report(violations))
+    head = 'a physical invariant broken'
+
+    def __init__(self, violations, source: str | None = None):
+        self.violations = list(violations)
+        super().__init__([str(v) for v in self.violations], source)
 
 
 def strict() -> bool:

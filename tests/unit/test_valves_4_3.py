@@ -29,12 +29,14 @@ TOL = 1.0e-12            # the steady states' scaled residual
 # The 4/3 valve between held pressures (v) and driving a cylinder (w, wc).
 VALVE = dict(A_max=1.0e-5, A_BT=1.5e-5, C_d=0.65, overlap_P=0.1, overlap_T=0.05, omega=60.0,
              zeta=0.7, G_leak=G_SPOOL, dp_cr=5.0e4, A_ls=1.0e-6, ls_open=0.05)
+# The cylinders' piston seals are taken leak-free (G_int 0): the valves' flows and leakages
+# are what is measured.
 CYL = dict(A_a=3.14e-3, A_b=1.5e-3, m=200.0, stroke=1.0, x0=0.5, V_a=1.0e-3, V_b=5.0e-4,
-           c=1.0e4)
+           c=1.0e4, G_int=0.0)
 # The counterbalance between held pressures (cb) and holding a hanging load (hc, hcb, hv).
 CB = dict(A=2.0e-5, p_set=1.25e7, ratio=5.0, p_band=1.0e6, p_h=5.0e5, tau=0.01, dp_ff=7.0e6,
           p_check=3.5e4, p_check_full=1.5e5, C_d=0.65, G_leak=G_SEAT, dp_cr=1.0e4)
-HANG = dict(A_a=3.14e-3, m=500.0, stroke=1.0, x0=0.5, V_a=1.0e-3, c=1.0e4)
+HANG = dict(A_a=3.14e-3, m=500.0, stroke=1.0, x0=0.5, V_a=1.0e-3, c=1.0e4, G_int=0.0)
 F_HANG = 3.0e4           # N: the hanging load, 95.5 bar on the cap side (p_set = 1.3 x)
 PC = dict(A=1.0e-5, ratio=3.5, p_crack=1.0e5, p_band=2.0e5, C_d=0.65, G_leak=G_SEAT,
           dp_cr=1.0e4)
@@ -189,7 +191,7 @@ def test_valve_4_3_cylinder(rig, base):
     A_a, A_b, c = CYL['A_a'], CYL['A_b'], CYL['c']
 
     def solve(x, F, PS=2.0e7):
-        def pressure(flow_into, q, lo=-2.0e6, hi=4.0e7):
+        def pressure(flow_into, q, lo=-1.0e10, hi=1.0e10):
             return brentq(lambda P: flow_into(P) - q, lo, hi, xtol=1e-6)
 
         def force_excess(v):
@@ -197,7 +199,7 @@ def test_valve_4_3_cylinder(rig, base):
             PB = pressure(lambda P: valve_flows(x, PS, 0.0, 0.0, P)[2], -A_b * v)
             return PA * A_a - PB * A_b - F - c * v, PA, PB
 
-        v = brentq(lambda v: force_excess(v)[0], -1.0, 1.0, xtol=1e-14)
+        v = brentq(lambda v: force_excess(v)[0], -0.5, 0.5, xtol=1e-14)
         return v, *force_excess(v)[1:]
 
     for x, F in [(0.6, 2.0e4), (1.0, 4.0e4), (-0.6, -1.0e4), (-0.8, 1.0e4)]:
@@ -259,8 +261,8 @@ def test_valve_4_3_centre(rig, base):
                   k(1.0e-5) * s0 * (sroot(P['PP'] - P['PA'], 5.0e4)
                                     + sroot(P['PP'] - P['PB'], 5.0e4))
                   + G * (2 * P['PP'] - P['PA'] - P['PB']), 1e-9)
-            assert eq['v.flow_P'] > 1.0e3 * G * P['PP']
-            assert eq['v.flow_T'] > 1.0e3 * G * P['PA']
+            assert eq['v.flow_P'] > 20.0 * G * (2 * P['PP'] - P['PA'] - P['PB'])
+            assert eq['v.flow_T'] > 20.0 * G * (P['PA'] + P['PB'] - 2 * P['PT'])
 
 
 def test_valve_4_3_load_sensing(rig, base):
@@ -447,7 +449,7 @@ def test_pilot_check_both_ways(rig, base):
         close(f'pilot_check flow {PI:g} {PO:g} {Pp:g}', eq['pc.flow'], q, 1e-9)
         close(f'pilot_check loss {PI:g} {PO:g} {Pp:g}', eq['pc.loss'], q * (PI - PO), 1e-9)
     eq = steady(rig, base, {'pcI.pressure': 0.0, 'pcO.pressure': 1.0e7, 'pcP.pressure': 4.0e6})
-    assert eq['pc.flow'] < -1.0e6 * G_SEAT * 1.0e7           # really open backwards
+    assert eq['pc.flow'] < -1.0e4 * G_SEAT * 1.0e7           # really open backwards
     eq = steady(rig, base, {'pcI.pressure': 0.0, 'pcO.pressure': 1.0e7, 'pcP.pressure': 0.0})
     assert eq['pc.opening'] == 0.0
     close('pilot_check held', eq['pc.flow'], -G_SEAT * 1.0e7, 1e-12)

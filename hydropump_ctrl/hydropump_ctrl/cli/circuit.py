@@ -12,6 +12,7 @@ schedules inputs in time.
 from __future__ import annotations
 
 import json
+import sys
 import time
 
 import numpy as np
@@ -43,6 +44,9 @@ def register(sub) -> None:
     c.add_argument('--csv', help='write every signal over time to this CSV file')
     c.add_argument('--analyze', action='store_true', help='steady state, modes, section IV '
                    'component by component, the simplified circuit and the transfer matrix')
+    c.add_argument('--check', action='store_true', help="check the run's physical "
+                   'invariants (no pressure above every source, none below the cavitation '
+                   'floor, no component making energy): each broken one in a line, exit 1')
     c.set_defaults(func=cmd_circuit)
 
 
@@ -126,6 +130,11 @@ def cmd_circuit(args) -> int:
             print(f'wrote {csv}')
     if args.analyze:
         print(analysis_text(run.circuit))
+    if args.check:
+        from hydropump_sim.invariants import report
+        violations = run.info['violations']
+        print(report(violations), file=sys.stderr if violations else sys.stdout)
+        return 1 if violations else 0
     return 0
 
 

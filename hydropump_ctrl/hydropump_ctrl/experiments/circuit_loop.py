@@ -248,7 +248,7 @@ def run_circuit(circuit: Circuit, duration: float,
             sim.step()
     violations = invariants.check(circuit, t, Y, Uo)
     if violations and invariants.strict():
-        raise invariants.InvariantError(violations)
+        raise invariants.InvariantError(violations, circuit.name)
     return CircuitRun(circuit, t, Y, Uo, control, ctrl.algorithm if ctrl else None, margin,
                       np.array(t_ctrl), {k: np.array(v) for k, v in meas_log.items()},
                       {'config': cfg if ctrl is not None else None, 'violations': violations})
