@@ -1,9 +1,9 @@
 """Physical invariants of a circuit's run, checked over the whole run, not trusted.
 
 - **No pressure above what a source can make.** Every node stays at or below the highest
-  pressure any component of the circuit can produce with the inputs it held (a relief's
-  full-flow pressure plus one regulation range, a pump's cut-off and its band, a held
-  source, a load's force over its area: :meth:`Component.pressure_cap
+  pressure any component of the circuit could produce with the inputs it held so far (a
+  relief's full-flow pressure plus one regulation range, a pump's cut-off and its band, a
+  held source, a load's force over its area: :meth:`Component.pressure_cap
   <hydropump_sim.components.base.Component.pressure_cap>`), plus :data:`CAP_MARGIN`.
 - **None below the cavitation floor**: absolute zero, less what the floor's relaxation lets a
   step overshoot (:data:`FLOOR_MARGIN`).
@@ -81,7 +81,9 @@ def check(circuit, t: np.ndarray, y: np.ndarray, u: np.ndarray) -> list[Violatio
         return out
     n = len(circuit.nodes)
     P = y[:, :n]
-    cap = pressure_caps(circuit, u)
+    # What a source made at any earlier time can stay stored (a charged accumulator, a
+    # trapped volume): the cap is the highest so far.
+    cap = np.fmax.accumulate(pressure_caps(circuit, u))
     limit = cap * (1.0 + CAP_MARGIN[0]) + CAP_MARGIN[1]
     floor = -circuit.fluid.p_atm - FLOOR_MARGIN
     for i, node in enumerate(circuit.nodes):

@@ -30,24 +30,31 @@ Signals: ``flow_a`` (into the hose at ``a``), ``flow_b`` (out of the hose at ``b
 Defaults:
 
 - ``n = 5``: a chain of ``n`` pi segments (inductance ``rho l / A``, capacitance
-  ``A l / beta_eff``) has its ``k``-th eigenfrequency at ``2 c / l sin(k pi / (4 n))``
-  when one end is held (a pressure source) and the other closed (the valve), against
-  ``k pi c / (2 L)`` for the continuous line. The fundamental period is therefore
+  ``A l / beta_eff``) held at one end (a pressure source) and closed at the other (the
+  valve) has its modes at ``2 (c / l) sin(k pi / (4 n))``, ``k = 1, 3, 5, ...``, against
+  ``k pi c / (2 L)`` for the continuous line. Its fundamental period is therefore
   ``x / sin(x)`` times ``4 L / c`` with ``x = pi / (4 n)``: 0.41 % long at ``n = 5``
-  (1.2 % at 3, 0.64 % at 4); with both ends held or both closed (the half-wave, ``2 L /
-  c``) ``x = pi / (2 n)``: 1.7 % at 5, 2.6 % at 4. The error depends on ``n`` only, not on
-  ``L``, ``d`` or ``c``, and laminar friction (decay rate ``16 nu / d^2``, about 1/s for a
-  20 mm bore) moves it by far less, so ``n = 5`` keeps the fundamental of every end condition
-  within 2 % for any hose, with 9 states. More segments resolve the steep front of the
-  pressure wave (the higher modes); fewer are cheaper.
+  (1.2 % at 3, 0.64 % at 4). With both ends held or both closed (the half-wave, ``2 L / c``)
+  ``x = pi / (2 n)``: 1.7 % at 5, 2.6 % at 4. The error depends on ``n`` only, not on
+  ``L``, ``d`` or ``c``, and laminar friction (decay rate ``16 nu / d^2``, about 2/s for
+  VG46 oil in a 20 mm bore, against ``pi c / (2 L)`` = 168/s for 10 m at ``c`` = 1070
+  m/s) shifts it by far less, so ``n = 5`` keeps the fundamental of either end condition
+  within 2 % for any hose, with ``2 n - 1 = 9`` states. More segments resolve the steep
+  front of the wave (with few, the higher modes ring about the Joukowsky plateau); fewer
+  are cheaper.
 - ``beta_eff = 1e9`` Pa: Hopsan's hydraulic hose default. Oil and wall are in series:
   ``1 / beta_eff = 1 / beta_oil + 1 / beta_wall``, with ``beta_wall = E s / d`` for a thin
   wall of thickness ``s``. A steel tube (``E = 210`` GPa, ``d / s`` about 10) has
   ``beta_wall`` about 20 GPa and softens 1.5 GPa oil by some 7 %; a hose's elastomer wall,
   held only by its braid, swells far more per bar, and its effective modulus falls well
-  below the oil's (0.5 to 1 GPa). ``beta_eff = 0`` takes the circuit fluid's ``beta``:
-  a rigid steel pipe. ``beta_eff`` should not exceed the oil's own modulus (a wall only
-  softens it).
+  below the oil's (Hopsan's 1e9 Pa against oil of 1.5 GPa and more). ``beta_eff = 0``
+  takes the circuit fluid's ``beta``: a rigid steel pipe. ``beta_eff`` should not exceed
+  the oil's own modulus (a wall only softens it).
+
+The hose makes no pressure of its own at rest (no :meth:`~.base.Component.pressure_cap`),
+but its water hammer rises above every source by ``rho c v`` (and with few segments their
+ringing overshoots that plateau, up to about twice it after an abrupt closure): a circuit
+with a fast valve on a long line needs a relief above that, as a real one does.
 """
 
 from dataclasses import dataclass

@@ -36,15 +36,19 @@ to T near the centre, switching linearly over the first ``ls_open`` of the strok
     Q_ls->T = k_ls g_T sroot(P_ls - P_T)
 
 so an idle section senses tank and a working one its work port (the ``sensed`` signal,
-``g_A P_A + g_B P_B + g_T P_T``). With B plugged, its share drains to T.
+``g_A P_A + g_B P_B + g_T P_T``). With B plugged, its share drains to T. The signals
+``flow_A``, ``flow_B`` and ``flow_T`` are the valve's net flows at those ports, the LS
+passage's included (zero at rest past ``ls_open``); ``loss`` is the sum of ``dp q`` over
+the four edges and the passage.
 
 Defaults and their sources:
 
-- ``omega`` 60 rad/s, ``zeta`` 0.7: a proportional load-sensing section's spool (solenoid or
-  electro-hydraulic pilot, position-controlled) is slower than a servo valve's: a full
-  step in 50-80 ms, about 10 Hz; 60 rad/s, 0.7 damped makes a step's peak at 73 ms with a
-  4.6 % overshoot. Hopsan's 4/3 valve default is 100 rad/s critically damped (1.0), a
-  faster, generic spool;
+- ``omega`` 60 rad/s, ``zeta`` 0.7: a proportional load-sensing section's spool (a long,
+  heavy spool moved by a solenoid or an electro-hydraulic pilot stage under a position
+  loop) is slower than a servo valve's, about 10 Hz, and its position loop is tuned for a
+  small overshoot: 60 rad/s at 0.7 puts a step's peak at 73 ms with a 4.6 % overshoot.
+  Hopsan's 4/3 valve default is 100 rad/s critically damped (1.0), a faster, generic spool
+  that cannot overshoot;
 - ``overlap_P = overlap_T`` 0.1: a closed centre with a dead band of 10 % of the stroke,
   so that the neutral holds a load with the spool's leakage only and the load-sensing
   passage is switched (``ls_open`` 0.05, half of it) before metering starts, the sequence
@@ -172,10 +176,10 @@ class Valve43(Component):
     INPUTS = (InputSpec('command', '-', 'spool command -1..1 (+ P->A, B->T)', -1.0, 1.0,
                         'command'),)
     SIGNALS = (SignalSpec('spool', '-', 'spool position, fraction of the stroke -1..1'),
-               SignalSpec('flow_A', 'm^3/s', 'net flow from the valve into A'),
-               SignalSpec('flow_B', 'm^3/s', 'net flow from the valve into B'),
+               SignalSpec('flow_A', 'm^3/s', 'net flow from the valve into A (LS passage too)'),
+               SignalSpec('flow_B', 'm^3/s', 'net flow from the valve into B (LS passage too)'),
                SignalSpec('flow_P', 'm^3/s', 'flow from P into the valve'),
-               SignalSpec('flow_T', 'm^3/s', 'flow from the valve into T'),
+               SignalSpec('flow_T', 'm^3/s', 'flow from the valve into T (LS drain too)'),
                SignalSpec('loss', 'W', 'power dissipated in the edges and the LS passage'),
                SignalSpec('sensed', 'Pa', 'pressure the LS passage connects to'))
     kernel = kernel
