@@ -3,10 +3,10 @@ before it), beside today's plant (the paper's pump and orifice, the same current
 aperture steps as bench_plant) measured in the same run.
 
 Rows, each a real-time factor and its cost against the plant's same row:
-- offline, ``simulate_circuit`` / ``simulate`` (adaptive Rodas4 steps; the circuit under
+- offline, ``simulate`` of the circuit / of the plant (adaptive Rodas4 steps; the circuit under
   the hydromechanical load-sensing pump, so no controller), and the same without the
   steady-state search each call starts with;
-- as the simulator node steps it, ``CircuitSimulator.step`` / ``Simulator.step`` once a
+- as the simulator node steps it, ``Simulator.step`` of each once a
   millisecond;
 - closed loop under EMC margin control (``run_circuit``: the circuit, the bench's sensors
   and the controller's law each millisecond, as the two nodes run it), pre- and
@@ -27,9 +27,9 @@ from hydropump_ctrl.experiments.circuit_loop import controller_config, hydromech
 from hydropump_ctrl.experiments.fig1 import DURATION, held_inputs, MARGIN, START  # noqa: E402
 from hydropump_sim import load_params, simulate, Simulator  # noqa: E402
 from hydropump_sim.circuit import load_circuit  # noqa: E402
-from hydropump_sim.circuit_sim import CircuitSimulator, equilibrium, input_vector, simulate_circuit  # noqa: E402
 from hydropump_sim.params import default_params_path  # noqa: E402
 from hydropump_sim.scaling import current_for_displacement  # noqa: E402
+from hydropump_sim.steady import equilibrium  # noqa: E402
 
 from common import emit, median_time, row  # noqa: E402
 
@@ -73,9 +73,9 @@ def plant_seconds(duration: float) -> tuple[float, float]:
 
 def fig1_stepped(circuit, duration: float) -> float:
     """Wall time of ``duration`` s of ``circuit`` through the duty cycle, one
-    ``CircuitSimulator.step()`` per millisecond (median of 3; each run's steady-state
+    ``Simulator.step()`` per millisecond (median of 3; each run's steady-state
     search at its start, the node's ~/reset, outside the timing)."""
-    sim = CircuitSimulator(circuit, 1e-3)
+    sim = Simulator(circuit, 1e-3)
     t = np.arange(int(round(duration / 1e-3))) * 1e-3 - SETTLE
     table = held_inputs(np.maximum(t, 0.0))
     index = [circuit.input_index(n) for n in table]
@@ -102,13 +102,13 @@ def main():
             row('real-time factor, the paper plant, Simulator.step() at 1 kHz',
                 simulated / t_step, 'x', '', None, 'baseline, same run')]
     ls = hydromechanical(fig1, MARGIN)
-    eq = equilibrium(ls, input_vector(ls, START))
-    t_sim = timed(lambda: simulate_circuit(ls, simulated, inputs), repeat=3)
-    t_sim_x0 = timed(lambda: simulate_circuit(ls, simulated, inputs, x0=eq.x), repeat=3)
+    eq = equilibrium(ls, ls.input_vector(START))
+    t_sim = timed(lambda: simulate(ls, simulated, inputs), repeat=3)
+    t_sim_x0 = timed(lambda: simulate(ls, simulated, inputs, x0=eq.x), repeat=3)
     t_fig1_step = fig1_stepped(ls, simulated)
-    for label, t, base in (('simulate_circuit()', t_sim, t_off),
-                           ('simulate_circuit() from a given state', t_sim_x0, t_off),
-                           ('CircuitSimulator.step() at 1 kHz', t_fig1_step, t_step)):
+    for label, t, base in (('simulate()', t_sim, t_off),
+                           ('simulate() from a given state', t_sim_x0, t_off),
+                           ('Simulator.step() at 1 kHz', t_fig1_step, t_step)):
         rows.append(row(f'real-time factor, Fig. 1 duty cycle, LS pump, {label}',
                         simulated / t, 'x', '>= 100', simulated / t >= 100,
                         f"{t / base:.1f}x the plant's time"))

@@ -124,7 +124,7 @@ def run(params, current: np.ndarray, load_pressure: np.ndarray | None = None,
     x = x0.copy()
     scale = np.array([params.spool.x_c_max, 0.1, params.x_a_stop, 0.1, 1e6, 1e6, 0.4][:x.size])
     for a, b in zip(edges[:-1], edges[1:]):
-        u = np.array([current[a] - params.I_nominal, load[a], params.line.xi_u,
+        u = np.array([current[a], load[a], params.line.xi_u,
                       params.pump.f_p])
         t0, t1 = a * dt, b * dt
         sol = solve_ivp(rhs, (t0, t1), x, method='Radau', args=(u, params, 'fine', None, p),

@@ -4,12 +4,17 @@ with mechanical feedback (the paper's fine model, simplified model and linear an
 Public API (stable):
 
 - :func:`load_params` - validated parameters from a params file such as ``config/pump.yaml``;
-- :func:`simulate` - time response of the fine or simplified model (:func:`held`: a step
-  schedule as an input);
-- :func:`equilibrium` - trim at any operating point;
-- :func:`linearize`, :func:`paper_linear`, :func:`transfer_matrix`, :func:`modal_analysis`,
-  :func:`singular_perturbation_check` - linear analysis (eqs. 14-18, section IV);
-- :class:`Simulator` - fixed-increment stepper for the ROS simulator.
+  :func:`load_circuit` - a circuit from its YAML file;
+- :class:`Model` - the one model interface: the paper's plant (:class:`PumpModel`) and
+  every circuit implement it, and everything below runs either;
+- :func:`simulate` - time response (:func:`held`: a step schedule as an input), a
+  :class:`Result` indexed by name; :class:`Simulator` - the fixed-increment stepper of the
+  ROS simulator;
+- :func:`equilibrium` - the paper plant's steady state at any operating point;
+  :func:`steady_state` - any model's;
+- :func:`linearize`, :func:`transfer_matrix`, :func:`modal_analysis` - linear analysis of
+  any model; :mod:`hydropump_sim.paper` - the paper's closed forms (eqs. 14-18),
+  :func:`paper_linear`, :func:`singular_perturbation_check` among them.
 
 Pure Python (numpy, scipy, numba): nothing here imports ROS. The model and the linear
 analysis load on first use, so a node that only reads parameters (the controller, the
@@ -23,17 +28,20 @@ import types
 
 from .params import load_params, ParamError, Params
 
-_LAZY = {**{name: 'linear' for name in ('linearize', 'modal_analysis', 'paper_linear',
-                                        'singular_perturbation_check', 'transfer_matrix')},
+_LAZY = {**{name: 'linear' for name in ('linearize', 'modal_analysis', 'transfer_matrix')},
+         **{name: 'paper' for name in ('paper_linear', 'singular_perturbation_check')},
          **{name: 'simulate' for name in ('IntegrationError', 'IntegratorConfig', 'SimResult',
                                           'Simulator')},
-         'held': 'inputs',
+         **{name: 'system' for name in ('Model', 'Result', 'SteadyState')},
+         'PumpModel': 'plant_model', 'load_circuit': 'circuit', 'held': 'inputs',
+         'steady_state': 'steady',
          **{name: 'trim' for name in ('Equilibrium', 'equilibrium', 'TrimError')}}
 
 __all__ = [
-    'Equilibrium', 'IntegrationError', 'IntegratorConfig', 'ParamError', 'Params', 'SimResult',
-    'Simulator', 'TrimError', 'equilibrium', 'held', 'linearize', 'load_params', 'modal_analysis',
-    'paper_linear', 'simulate', 'singular_perturbation_check', 'transfer_matrix',
+    'Equilibrium', 'IntegrationError', 'IntegratorConfig', 'Model', 'ParamError', 'Params',
+    'PumpModel', 'Result', 'SimResult', 'Simulator', 'SteadyState', 'TrimError', 'equilibrium',
+    'held', 'linearize', 'load_circuit', 'load_params', 'modal_analysis', 'paper_linear',
+    'simulate', 'singular_perturbation_check', 'steady_state', 'transfer_matrix',
 ]
 
 

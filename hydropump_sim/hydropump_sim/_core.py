@@ -31,6 +31,8 @@ from .components.pump import (
     P_DITHF,
     P_DPCRU,
     P_GAMMA,
+    P_IMAX,
+    P_IMIN,
     P_MODEL,
     P_MUU,
     P_PATM,
@@ -53,13 +55,14 @@ __all__ = ['FINE', 'N_U', 'N_Y', 'P_DITHA', 'P_DPCRU', 'P_GAMMA', 'P_MUU', 'P_PA
            'evaluate', 'evaluate_c', 'groot', 'jacobian', 'pump_flow', 'relief_flow', 'run',
            'state_scale', 'structure', 'structure_rows']
 
-# Inputs: commanded current variation i_s [A], load pressure P_u [Pa], aperture xi_u [-],
-# shaft frequency f_p [Hz].
-U_IS, U_PU, U_XI, U_FP, N_U = range(5)
+# Inputs: the solenoid current I_s [A] (absolute, as the pump component's), load pressure
+# P_u [Pa], aperture xi_u [-], shaft frequency f_p [Hz].
+U_I, U_PU, U_XI, U_FP, N_U = range(5)
 
-# Outputs: the pump's signals (components/pump.py Y_*), then the load and relief flows.
-(Y_IS, Y_XC, Y_VC, Y_XA, Y_VA, Y_PA, Y_PL, Y_QP, Y_QA, Y_QL, Y_QLOAD, Y_QRELIEF,
- N_Y) = range(13)
+# Outputs: the pump's signals (components/pump.py Y_*), then the load and relief flows and
+# the held load pressure.
+(Y_IS, Y_XC, Y_VC, Y_XA, Y_VA, Y_PA, Y_PL, Y_QP, Y_QA, Y_QL, Y_QLOAD, Y_QRELIEF, Y_PU,
+ N_Y) = range(14)
 
 OK, FAIL_STEP, FAIL_NAN, FAIL_STEPS, FAIL_BUDGET = (ig.OK, ig.FAIL_STEP, ig.FAIL_NAN,
                                                     ig.FAIL_STEPS, ig.FAIL_BUDGET)
@@ -93,8 +96,8 @@ def _evaluate(t, x, u, p, dx, y):
         Fine: ``[x_c, v_c, x_a, v_a, P_a, P_l(, i)]`` in m, m/s, Pa (gauge), A.
         Simplified: ``[x_a, P_l]``.
     u : ndarray, shape (4,)
-        ``[i_s, P_u, xi_u, f_p]``: current variation [A], load pressure [Pa], aperture [-],
-        shaft frequency [Hz].
+        ``[I_s, P_u, xi_u, f_p]``: solenoid current [A] (eq. 2's variation is
+        ``I_s - I_min - I_max``), load pressure [Pa], aperture [-], shaft frequency [Hz].
     p : ndarray
         Packed parameters.
     dx : ndarray, shape (n,)
@@ -104,13 +107,14 @@ def _evaluate(t, x, u, p, dx, y):
     """
     k_l = 5 if p[P_MODEL] == FINE else 1
     P_l = x[k_l]
-    q_l = pump_equations(t, x, dx, 6, P_l, u[U_IS], u[U_FP], p, y)
+    q_l = pump_equations(t, x, dx, 6, P_l, u[U_I] - (p[P_IMIN] + p[P_IMAX]), u[U_FP], p, y)
     # Eq. 9: the load orifice, then the relief valve of Fig. 1.
     Q_load = load_flow(P_l, u[U_PU], u[U_XI], p[P_MUU], p[P_DPCRU], p[P_GAMMA])
     Q_r = relief_flow(P_l, p)
     dx[k_l] = chamber_rate(P_l, q_l - Q_load - Q_r, p[P_VL], p)
     y[Y_QLOAD] = Q_load
     y[Y_QRELIEF] = Q_r
+    y[Y_PU] = u[U_PU]
 
 
 evaluate = jit(_evaluate)

@@ -9,7 +9,7 @@ import math
 import control
 import numpy as np
 
-from . import linear as lin
+from . import linear, paper
 from .files import save_figure
 from .metrics import fast_fraction, step_figures
 from .params import Params
@@ -53,8 +53,8 @@ def design_checks(params: Params) -> list[DesignCheck]:
         DesignCheck('tau_h hydro-mechanical (I7)', tau_h, 's', '~ 0.1 ms', tau_h <= 2e-4,
                     'replaces the literal tau_a, infinite at x_c = 0'),
         DesignCheck('epsilon = (K_a+K_b) V_a/(beta S_a^2) (I7)', eps, '-', '<< 1', eps < 0.01),
-        DesignCheck('tau_z = S_a/b_p (D4)', lin.zero_time_constant(params), 's', '~ 10 ms',
-                    abs(lin.zero_time_constant(params) - 0.01) < 0.005),
+        DesignCheck('tau_z = S_a/b_p (D4)', paper.zero_time_constant(params), 's', '~ 10 ms',
+                    abs(paper.zero_time_constant(params) - 0.01) < 0.005),
         DesignCheck('K_c/K_a', sp.K_c / sp.K_a, '-', '<< 1', sp.K_c / sp.K_a <= 0.1),
         DesignCheck('min P_a over the stroke (D5)', min(lo.P_a, hi.P_a), 'Pa', '> 0',
                     min(lo.P_a, hi.P_a) > 0),
@@ -97,7 +97,7 @@ def step_comparison(params: Params, d0: float = 0.4, d1: float = 0.6,
         out.q_l[name] = r.q_l
     branch = 'pos' if d1 > d0 else 'neg'
     eq0 = equilibrium(params, I0)
-    ss = lin.paper_linear(params, eq0, branch).ss(inputs=['i_s'], outputs=['q_l'])
+    ss = paper.paper_linear(params, eq0, branch).ss(inputs=['i_s'], outputs=['q_l'])
     resp = control.forced_response(ss, out.t, np.where(out.t < t_step, 0.0, I1 - I0))
     out.q_l[f'eq{14 if branch == "pos" else 15}'] = eq0.q_l + np.asarray(resp.outputs)
     fine = out.q_l['fine']
@@ -120,12 +120,12 @@ def bode_set(params: Params, omega: np.ndarray) -> dict[str, tuple[np.ndarray, n
     out = {}
     for name in ('fine', 'simplified', 'simplified_Kc'):
         for br in ('pos', 'neg'):
-            ss = lin.linearize(params, equilibrium(params, model=name), br, name).ss(
+            ss = linear.linearize(params, equilibrium(params, model=name), br, name).ss(
                 inputs=['i_s'], outputs=['q_l'])
-            mag, ph = lin.bode_data(ss, omega)
+            mag, ph = linear.bode_data(ss, omega)
             out[f'{name} ({br})'] = (mag * norm, ph)
     for br, label in (('pos', 'eq. 14'), ('neg', 'eq. 15')):
-        mag, ph = lin.bode_data(lin.paper_linear(params, branch=br).ss(
+        mag, ph = linear.bode_data(paper.paper_linear(params, branch=br).ss(
             inputs=['i_s'], outputs=['q_l']), omega)
         out[label] = (mag * norm, ph)
     return out
@@ -155,7 +155,7 @@ def format_report(params: Params, T: float = 0.05) -> tuple[str, dict]:
         add(f'== Fine-model modes, branch {br} ({side}); T = {T * 1e3:.0f} ms ==')
         add(f'  {"eigenvalue [1/s]":>26s} {"tau [ms]":>9s} {"f_n [Hz]":>9s} {"zeta":>6s} '
             f'{"eps=tau/T":>10s}  {"in model":10s} dominant states')
-        for pm in lin.singular_perturbation_check(params, T, br):
+        for pm in paper.singular_perturbation_check(params, T, br):
             m = pm.mode
             ev = (f'{m.eigenvalue.real:.2f} +- {m.eigenvalue.imag:.1f}j' if m.oscillatory
                   else f'{m.eigenvalue.real:.3f}')
@@ -165,19 +165,19 @@ def format_report(params: Params, T: float = 0.05) -> tuple[str, dict]:
         add('')
     add('== Paper linear models (eqs. 14-18) at the nominal point ==')
     for br, num in (('pos', 14), ('neg', 15)):
-        pl = lin.paper_linear(params, branch=br)
+        pl = paper.paper_linear(params, branch=br)
         add(f'  eq. {num}: A = {np.array2string(pl.A, precision=5)}'.replace('\n', ' '))
         add(f'          B = {np.array2string(pl.B, precision=5)}'.replace('\n', ' '))
         add(f'          C = {np.array2string(pl.C, precision=5)}   D = '
             f'{np.array2string(pl.D, precision=5)}'.replace('\n', ' '))
-        tau = lin.eq14_time_constant(params, branch=br)
+        tau = paper.eq14_time_constant(params, branch=br)
         add(f'          time constant S_a/(mu_a r) = {tau * 1e3:.3f} ms '
-            f'({lin.eq14_time_constant(params, branch=br, keep_Kc=True) * 1e3:.3f} ms keeping '
+            f'({paper.eq14_time_constant(params, branch=br, keep_Kc=True) * 1e3:.3f} ms keeping '
             f'K_c); poles {np.array2string(np.sort(np.linalg.eigvals(pl.A).real), precision=3)}'
             ' 1/s')
     add(f'  zero of eq. 17 (falling flow): tau_z = S_a/b_p = '
-        f'{lin.zero_time_constant(params) * 1e3:.3f} ms')
-    G = lin.transfer_matrix(params, branch='pos')
+        f'{paper.zero_time_constant(params) * 1e3:.3f} ms')
+    G = paper.transfer_matrix(params, branch='pos')
     dc = float(np.real(G(0)[1, 0]))
     add(f'  eq. 16 G21(0) = {dc:.6e} m^3/(s A) = V_p f_p / I_max x '
         f'{dc * params.spool.I_max / params.Q_max:.6f}  (G0 = '

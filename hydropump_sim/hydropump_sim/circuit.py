@@ -55,7 +55,8 @@ from .components.base import Component, Expansion, PortSpec
 from .errors import HydropumpError
 from .jitcache import DIGEST
 from .params import Fluid, load_params, Params
-from .schema import build, closest_name, flatten, fmt, ParamError, read_yaml, to_flat
+from .schema import build, flatten, fmt, ParamError, read_yaml, to_flat
+from .system import Model, unknown
 
 
 class CircuitError(HydropumpError, ValueError):
@@ -89,8 +90,9 @@ class Part:
 
 
 @dataclass
-class Circuit:
-    """A checked, laid-out and compiled circuit (see the module).
+class Circuit(Model):
+    """A checked, laid-out and compiled circuit (see the module): a
+    :class:`~hydropump_sim.system.Model`.
 
     Attributes
     ----------
@@ -144,23 +146,9 @@ class Circuit:
     meters: dict[int, int] = field(default_factory=dict)
     entries: dict[str, Any] = field(repr=False, default_factory=dict)
     module: Any = field(repr=False, default=None)
+    error = CircuitError
 
     # ---- names ----------------------------------------------------------------------------
-
-    def signal_index(self, name: str) -> int:
-        """Index in ``y`` of a signal (a composite's own names resolve to its parts')."""
-        name = self._alias(name, 'signals')
-        try:
-            return self.signals.index(name)
-        except ValueError:
-            raise CircuitError([_unknown(name, self.signals, 'signal')]) from None
-
-    def input_index(self, name: str) -> int:
-        name = self._alias(name, 'inputs')
-        try:
-            return self.inputs.index(name)
-        except ValueError:
-            raise CircuitError([_unknown(name, self.inputs, 'input')]) from None
 
     def _alias(self, name: str, kind: str) -> str:
         head, _, rest = name.partition('.')
@@ -252,27 +240,120 @@ class Circuit:
                             f'{n}.{j.velocity}' if j.velocity else None))
         return out
 
+    def plant_inputs(self) -> dict[str, str]:
+        """The pump's current (an electro-hydraulic pump's) and shaft speed, the paper
+        load's pressure and aperture (eq. 9), where the circuit has them."""
+        out = {}
+        for pt in self.parts:
+            if pt.comp.PLANT_INPUTS:
+                for s in pt.comp.INPUTS:
+                    out.setdefault(s.name, f'{pt.comp.name}.{s.name}')
+        return out
+
+    def pump_name(self) -> str | None:
+        pump = self.pump()
+        return pump.comp.name if pump is not None else None
+
+    def relieved(self) -> list[str]:
+        """The flow signals of its pressure-limiting components (relief valves)."""
+        return [f'{pt.comp.name}.flow' for pt in self.role('pressure_limit')]
+
+    def pressure_nodes(self) -> list[tuple[str, str]]:
+        return [(n, f'{NODE_PREFIX}{n}') for n in self.nodes]
+
+    def pressure_caps(self, U: np.ndarray) -> np.ndarray:
+        """The highest of its components' :meth:`pressure_cap
+        <hydropump_sim.components.base.Component.pressure_cap>` at each row of ``U``."""
+        rows, inverse = np.unique(U, axis=0, return_inverse=True)
+        caps = np.full(rows.shape[0], -np.inf)
+        for part in self.parts:
+            comp = part.comp
+            for r, u in enumerate(rows):
+                ins = {s.name: float(u[part.u.start + i]) for i, s in enumerate(comp.INPUTS)}
+                cap = comp.pressure_cap(ins)
+                if cap is not None:
+                    caps[r] = max(caps[r], cap)
+        caps[~np.isfinite(caps)] = np.nan
+        return caps[np.ravel(inverse)]
+
+    def branch_p(self, branch: str | None) -> np.ndarray:
+        """The steady parameters with the pump's pilot-valve law forced to one side of its
+        kink (``x_c = 0`` at every steady state, docs/reference.md I2)."""
+        from .components.pump import P_BRANCH
+        p = self.p_steady
+        pump = self.pump()
+        if pump is not None and branch is not None and hasattr(pump.comp, 'P_OFFSET'):
+            p[pump.p.start + pump.comp.P_OFFSET + P_BRANCH] = {'pos': 1.0, 'neg': -1.0}[branch]
+        return p
+
+    def plant_params(self):
+        pump = self.pump()
+        return pump.comp.params.plant if pump is not None else None
+
+    def component_names(self) -> list[str]:
+        return [pt.comp.name for pt in self.parts]
+
+    def reducible(self) -> dict[str, tuple[str, ...]]:
+        """The states each component's static form does without (no compile: its own
+        states, with its static values)."""
+        out = {}
+        for pt in self.parts:
+            comp = pt.comp
+            values = comp.static_values()
+            if values is None:
+                continue
+            static = type(comp)(comp.name, dataclasses.replace(comp.params, **values),
+                                comp.ports, comp.fluid)
+            keep = {s.name for s in static.states()}
+            gone = tuple(f'{comp.name}.{s.name}' for s in comp.states() if s.name not in keep)
+            if gone:
+                out[comp.name] = gone
+        return out
+
+    def static_sets(self, components) -> dict:
+        sets = {}
+        for pt in self.parts:
+            if pt.comp.name in components:
+                for k, v in (pt.comp.static_values() or {}).items():
+                    sets[f'{pt.comp.name}.{k}'] = v
+        return sets
+
+    def made_static(self, components) -> Circuit:
+        return self.with_values(self.static_sets(components))
+
+    def start_states(self, u: np.ndarray) -> list[np.ndarray]:
+        """A start for the steady-state search: every node at the highest fixed pressure
+        (a tank's) or what its components expect there (a load holding its force, and
+        upstream of it at least as much), every component at its own start."""
+        fixed = {n: float(self.p[N_FLUID + self.nodes.index(n)] if how == 'param'
+                          else u[self.inputs.index(f'{c}.{k}')])
+                 for n, (c, how, k) in self.fixed.items()}
+        p0 = max(fixed.values(), default=0.0)
+        x = np.zeros(self.n_states)
+        P = {n: fixed.get(n, p0) for n in self.nodes}
+        for part in self.parts:
+            ins = {s.name: float(u[part.u.start + i]) for i, s in enumerate(part.comp.INPUTS)}
+            for port, v in part.comp.pressure_guess(ins).items():
+                for n in part.comp.ports.get(port, []):
+                    if n not in fixed:
+                        P[n] = max(P[n], v)
+        for n in self.nodes:
+            if n not in fixed:
+                x[self.node_state(n)] = P[n]
+        for part in self.parts:
+            comp = part.comp
+            ports = {s.name: P[comp.ports[s.name][0]] for s in comp.PORTS
+                     if comp.ports.get(s.name)}
+            ins = {s.name: float(u[part.u.start + i]) for i, s in enumerate(comp.INPUTS)}
+            xs = comp.initial_state(ports, ins)
+            if xs.size:
+                x[part.x] = xs
+        return [x]
+
     def node_state(self, node: str) -> int:
         return self.states.index(f'{NODE_PREFIX}{node}')
 
     # ---- the stepper's view ---------------------------------------------------------------
-
-    def evaluate(self, t, x, u, p, dx, y) -> None:
-        """The compiled right-hand side and signals, called from Python."""
-        from .integrator import call
-        call(self.module.evaluate_c.address, t, x, u, p, dx, y)
-
-    def jacobian(self, t, x, u) -> np.ndarray:
-        """``df/dx`` at one point, as the stepper takes it: forward differences of the
-        compiled right-hand side, one evaluation per colour of the circuit's sparsity."""
-        from .integrator import jacobian
-        x = np.array(x, dtype=float)
-        u = np.ascontiguousarray(u, dtype=float)
-        f0, y = self.rhs(t, x, u)
-        J = np.zeros((self.n_states, self.n_states))
-        jacobian(self.module.evaluate_c.address, float(t), x, u, self.p, f0, self.state_scale, J,
-                 np.empty(self.n_states), y, self.colors, self.pattern)
-        return J
 
     @property
     def evaluate_c(self):
@@ -294,32 +375,6 @@ class Circuit:
                 'timed': self.dither > 0.0,
                 'dt_time': 1.0e-7 / max(self.dither, 1.0)}
 
-    def stepper_model(self, timed: bool | None = None) -> tuple:
-        """The stepper's view of this circuit (:func:`hydropump_sim.integrator.model`):
-        its compiled right-hand side and the colouring of its Jacobian; ``timed=False``
-        drops the dither's time dependence (a steady-state march)."""
-        from . import integrator
-        st = self.structure()
-        if timed is not None:
-            st['timed'] = timed
-        return integrator.model(self.module.evaluate_c, st)
-
-    @property
-    def n_states(self) -> int:
-        return len(self.states)
-
-    @property
-    def n_signals(self) -> int:
-        return len(self.signals)
-
-    def rhs(self, t: float, x, u) -> tuple[np.ndarray, np.ndarray]:
-        """State derivative and signals at one point (for analysis, not the inner loop)."""
-        dx = np.empty(self.n_states)
-        y = np.empty(self.n_signals)
-        self.evaluate(float(t), np.ascontiguousarray(x, dtype=float),
-                      np.ascontiguousarray(u, dtype=float), self.p, dx, y)
-        return dx, y
-
     def with_values(self, sets: Mapping[str, Any]) -> Circuit:
         """The same circuit file with more ``--set`` values (recompiled only if the
         structure changes)."""
@@ -334,11 +389,6 @@ def default_circuit_path() -> Path:
     return default_params_path().parent / 'circuits' / 'paper.yaml'
 
 
-def _unknown(name: str, names, what: str) -> str:
-    close = closest_name(name, names)
-    return f'{name}: unknown {what}' + (f' (did you mean {close}?)' if close else '')
-
-
 # ---- reading ---------------------------------------------------------------------------------
 
 def _resolve(value: Any, plant: dict | None, where: str, errors: list[str]) -> Any:
@@ -350,7 +400,7 @@ def _resolve(value: Any, plant: dict | None, where: str, errors: list[str]) -> A
             return None
         key = value[len('plant.'):]
         if key not in plant:
-            errors.append(f'{where} = {value}: {_unknown(key, plant, "plant parameter")}')
+            errors.append(f'{where} = {value}: {unknown(key, plant, "plant parameter")}')
             return None
         return plant[key]
     return value
@@ -427,7 +477,7 @@ def build_circuit(doc: Any, source: str, base: Path, sets: dict[str, Any],
                             '{...}, parameters}}'], source)
     for key in doc:
         if key not in _TOP:
-            errors.append(_unknown(str(key), _TOP, 'top-level key'))
+            errors.append(unknown(str(key), _TOP, 'top-level key'))
     bad_names = _check_names(doc)
     if bad_names:  # nothing else is read under a name that is not an identifier
         raise CircuitError(bad_names, source)
@@ -459,7 +509,7 @@ def build_circuit(doc: Any, source: str, base: Path, sets: dict[str, Any],
     input_sets: dict[str, float] = {}
     for name in by_comp:
         if name not in doc['components']:
-            errors.append(_unknown(name, list(doc['components']) + ['fluid'], 'component')
+            errors.append(unknown(name, list(doc['components']) + ['fluid'], 'component')
                           + ' in a set value')
     pending = [(str(name), entry, None) for name, entry in doc['components'].items()]
     while pending:
@@ -491,7 +541,7 @@ def build_circuit(doc: Any, source: str, base: Path, sets: dict[str, Any],
         try:
             k = circuit.inputs.index(name)
         except ValueError:
-            errors.append(_unknown(name, circuit.inputs, 'input'))
+            errors.append(unknown(name, circuit.inputs, 'input'))
             continue
         lo, hi = circuit.input_ranges[k]
         if isinstance(value, bool) or not isinstance(value, (int, float)) \
@@ -521,7 +571,7 @@ def _make(name: str, entry: Any, kinds: dict, plant: dict | None, sets: dict[str
     kind = sets.pop('type', entry.get('type'))
     cls = kinds.get(kind)
     if cls is None:
-        errors.append(f'{name}: ' + _unknown(str(kind), kinds, 'component type')
+        errors.append(f'{name}: ' + unknown(str(kind), kinds, 'component type')
                       .replace(f'{kind}: ', f'type {kind!r}: '))
         return None
     values = {k: _resolve(v, plant, f'{name}.{k}', errors)

@@ -52,51 +52,35 @@ class Violation:
                 f'{self.value * scale:.6g} {unit} (bound {self.bound * scale:.6g} {unit})')
 
 
-def pressure_caps(circuit, U: np.ndarray) -> np.ndarray:
-    """The highest source pressure [Pa] at each row of held inputs ``U`` (``nan``: the
-    circuit has no pressure limit)."""
-    rows, inverse = np.unique(U, axis=0, return_inverse=True)
-    caps = np.full(rows.shape[0], -np.inf)
-    for part in circuit.parts:
-        comp = part.comp
-        for r, u in enumerate(rows):
-            ins = {s.name: float(u[part.u.start + i]) for i, s in enumerate(comp.INPUTS)}
-            cap = comp.pressure_cap(ins)
-            if cap is not None:
-                caps[r] = max(caps[r], cap)
-    caps[~np.isfinite(caps)] = np.nan
-    return caps[np.ravel(inverse)]
-
-
-def check(circuit, t: np.ndarray, y: np.ndarray, u: np.ndarray) -> list[Violation]:
-    """Every invariant over a run: times ``t`` [s], signals ``y`` (rows of
-    ``circuit.signals``), held inputs ``u`` (rows of ``circuit.inputs``)."""
+def check(model, t: np.ndarray, y: np.ndarray, u: np.ndarray) -> list[Violation]:
+    """Every invariant over a run of ``model``: times ``t`` [s], signals ``y`` (rows of
+    ``model.signals``), held inputs ``u`` (rows of ``model.inputs``)."""
     out: list[Violation] = []
     t = np.asarray(t, dtype=float)
     bad = ~np.isfinite(y)
     if bad.any():
         k, j = np.argwhere(bad)[0]
-        out.append(Violation('a value that is not finite', circuit.signals[j], float(t[k]),
-                             float(y[k, j]), math.inf, circuit.signal_units[j]))
+        out.append(Violation('a value that is not finite', model.signals[j], float(t[k]),
+                             float(y[k, j]), math.inf, model.signal_units[j]))
         return out
-    n = len(circuit.nodes)
-    P = y[:, :n]
     # What a source made at any earlier time can stay stored (a charged accumulator, a
     # trapped volume): the cap is the highest so far.
-    cap = np.fmax.accumulate(pressure_caps(circuit, u))
+    cap = np.fmax.accumulate(model.pressure_caps(u))
     limit = cap * (1.0 + CAP_MARGIN[0]) + CAP_MARGIN[1]
-    floor = -circuit.fluid.p_atm - FLOOR_MARGIN
-    for i, node in enumerate(circuit.nodes):
-        over = P[:, i] - limit
+    p_atm = model.fluid.p_atm
+    floor = -p_atm - FLOOR_MARGIN
+    for node, signal in model.pressure_nodes():
+        P = y[:, model.signal_index(signal)]
+        over = P - limit
         if np.any(over > 0.0):
             k = int(np.nanargmax(over))
             out.append(Violation('a pressure above every source', f'node {node}',
-                                 float(t[k]), float(P[k, i]), float(cap[k]), 'Pa'))
-        if np.any(P[:, i] < floor):
-            k = int(np.argmin(P[:, i]))
+                                 float(t[k]), float(P[k]), float(cap[k]), 'Pa'))
+        if np.any(P < floor):
+            k = int(np.argmin(P))
             out.append(Violation('a pressure below the cavitation floor', f'node {node}',
-                                 float(t[k]), float(P[k, i]), -circuit.fluid.p_atm, 'Pa'))
-    for j, name in enumerate(circuit.signals):
+                                 float(t[k]), float(P[k]), -p_atm, 'Pa'))
+    for j, name in enumerate(model.signals):
         if name.endswith('.loss') and np.any(y[:, j] < -LOSS_MARGIN):
             k = int(np.argmin(y[:, j]))
             out.append(Violation('a component making energy', name[:-len('.loss')],

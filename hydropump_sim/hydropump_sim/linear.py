@@ -1,27 +1,33 @@
-"""Linearisation, the paper's linear models (eqs. 14-18) and modal analysis.
+"""Linearisation, modal analysis and the transfer matrix of any model.
 
-Every equilibrium sits at ``x_c = 0``, where eq. 4 has a kink (docs/reference.md I2), so all
-linearisations are one-sided: ``branch='pos'`` (growing flow, ``x_c > 0``, eq. 14) or
-``branch='neg'`` (falling flow, ``x_c < 0``, eq. 15).
+A steady state of a pump sits at ``x_c = 0``, where its pilot valve's law has a kink (eq. 4,
+docs/reference.md I2), so linearisations are one-sided: ``branch='pos'`` (growing flow,
+``x_c > 0``, eq. 14) or ``branch='neg'`` (falling flow, ``x_c < 0``, eq. 15). A model's
+integrating states (a cylinder's position) are left out: nothing depends on them away from
+the end stops, and they would only add poles at the origin.
+
+The paper's own closed forms of the pump alone (eqs. 14-18) are in :mod:`hydropump_sim.paper`.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 import math
 
 import control
 import numpy as np
 
-from . import _core as c
-from .model import INPUTS, OUTPUTS, pack, state_names
+from .model import INPUTS, OUTPUTS
 from .params import Params
-from .trim import Equilibrium, equilibrium
+from .plant_model import INPUT_NAMES, PumpModel, SIGNAL_NAMES, STATE_NAMES
+from .steady import equilibrium
+from .system import Model, SteadyState
 
 
 @dataclass(frozen=True)
 class LinearModel:
-    """``dx = A x + B u``, ``y = C x + D u`` in deviations from an equilibrium (SI)."""
+    """``dx = A x + B u``, ``y = C x + D u`` in deviations from a steady state (SI)."""
 
     A: np.ndarray
     B: np.ndarray
@@ -33,139 +39,106 @@ class LinearModel:
     branch: str
 
     def ss(self, inputs=None, outputs=None) -> control.StateSpace:
-        """python-control state space, optionally restricted to named inputs and outputs."""
+        """python-control state space, optionally restricted to named inputs and outputs
+        (python-control's names take no dots: ``pump.q_l`` is ``pump_q_l`` there)."""
         ii = [self.inputs.index(n) for n in (inputs or self.inputs)]
         oo = [self.outputs.index(n) for n in (outputs or self.outputs)]
         return control.ss(self.A, self.B[:, ii], self.C[oo, :], self.D[np.ix_(oo, ii)],
-                          states=list(self.states), inputs=[self.inputs[i] for i in ii],
-                          outputs=[self.outputs[o] for o in oo])
+                          states=[_py(s) for s in self.states],
+                          inputs=[_py(self.inputs[i]) for i in ii],
+                          outputs=[_py(self.outputs[o]) for o in oo])
 
 
-def linearize(params: Params, eq: Equilibrium | None = None, branch: str = 'pos',
-              model: str = 'fine') -> LinearModel:
-    """One-sided Jacobian linearisation of the nonlinear model by central differences.
+def _py(name: str) -> str:
+    return name.replace('.', '_').replace(':', '_')
+
+
+def linearize(plant: Model | Params, eq: SteadyState | None = None, branch: str | None = 'pos',
+              model: str = 'fine', *, inputs: Sequence[str] | None = None,
+              outputs: Sequence[str] | None = None) -> LinearModel:
+    """Central-difference linearisation at a steady state (default: the model's own).
 
     Parameters
     ----------
-    params : Params
-    eq : Equilibrium, optional
-        Operating point; default the nominal equilibrium of ``model``.
-    branch : {'pos', 'neg'}
-        Side of the pilot-valve kink at ``x_c = 0``.
+    plant : Model or Params
+        Any model; or the paper's plant by its parameters, whose linear model then takes
+        the paper's names (inputs ``[i_s, P_u, xi_u, f_p]``, outputs
+        :data:`hydropump_sim.model.OUTPUTS`, states ``x_c .. P_l``).
+    eq : SteadyState, optional
+    branch : {'pos', 'neg', None}
+        Side of the pump's pilot-valve kink (growing or falling flow); ``None`` leaves it.
     model : {'fine', 'simplified', 'simplified_Kc'}
+        The paper plant's form.
+    inputs, outputs : sequence of str, optional
+        Input and signal names (default every input and every signal a user reads).
 
     Returns
     -------
     LinearModel
-        Inputs ``[i_s, P_u, xi_u, f_p]``; outputs as :data:`hydropump_sim.model.OUTPUTS`.
+        Over the non-integrating states.
     """
-    if branch not in ('pos', 'neg'):
-        raise ValueError(f"branch must be 'pos' or 'neg', got {branch!r}")
-    eq = equilibrium(params, model=model) if eq is None else eq
-    p = pack(params, model, branch)
-    p[c.P_DITHA] = 0.0
-    n = eq.x.size
-    x_scale = c.state_scale(p, n)
-    u_scale = np.array([params.spool.I_max, 1.0e6, 0.1, 1.0])
+    if branch not in ('pos', 'neg', None):
+        raise ValueError(f"branch must be 'pos', 'neg' or None, got {branch!r}")
+    if isinstance(plant, Params):
+        return _paper_names(linearize(PumpModel(plant, model), eq, branch,
+                                      inputs=list(INPUT_NAMES),
+                                      outputs=[SIGNAL_NAMES[o] for o in OUTPUTS]))
+    m = plant
+    eq = equilibrium(m) if eq is None else eq
+    inputs = list(inputs) if inputs is not None else list(m.inputs)
+    outputs = list(outputs) if outputs is not None else m.component_signals()
+    p = m.branch_p(branch)
+    keep = np.flatnonzero(~m.integrating)
+    iu = [m.input_index(n) for n in inputs]
+    iy = [m.signal_index(n) for n in outputs]
+    n = m.n_states
+    dx = np.empty(n)
+    y = np.empty(m.n_signals)
 
     def f(x, u):
-        dx = np.empty(n)
-        y = np.empty(c.N_Y)
-        c.evaluate(0.0, x, u, p, dx, y)
-        return dx, y
+        m.evaluate(0.0, x, u, p, dx, y)
+        return dx[keep].copy(), y[iy].copy()
 
-    def central(vec, scale, k, other, is_state):
-        h = 1.0e-6 * scale[k]
-        vp, vm = vec.copy(), vec.copy()
-        vp[k] += h
-        vm[k] -= h
-        fp = f(vp, other) if is_state else f(other, vp)
-        fm = f(vm, other) if is_state else f(other, vm)
-        return (fp[0] - fm[0]) / (2 * h), (fp[1] - fm[1]) / (2 * h)
-
-    A = np.empty((n, n))
-    C = np.empty((c.N_Y, n))
-    for k in range(n):
-        A[:, k], C[:, k] = central(eq.x, x_scale, k, eq.u, True)
-    B = np.empty((n, c.N_U))
-    D = np.empty((c.N_Y, c.N_U))
-    for k in range(c.N_U):
-        B[:, k], D[:, k] = central(eq.u, u_scale, k, eq.x, False)
-    return LinearModel(A, B, C, D, state_names(params, model), INPUTS, OUTPUTS, branch)
-
-
-def load_slope(params: Params, eq: Equilibrium) -> float:
-    """``G_u = dQ_load/dP_l`` at the operating point [m^3/(s Pa)] (docs/reference.md I10)."""
-    ln = params.line
-    dp = eq.P_l - eq.u[c.U_PU]
-    return ln.mu_u * eq.u[c.U_XI] / ln.gamma_u * dp ** (1.0 / ln.gamma_u - 1.0)
+    A = np.empty((keep.size, keep.size))
+    C = np.empty((len(iy), keep.size))
+    for c, k in enumerate(keep):
+        h = 1.0e-6 * m.state_scale[k]
+        xp, xm = eq.x.copy(), eq.x.copy()
+        xp[k] += h
+        xm[k] -= h
+        (fp, yp), (fm, ym) = f(xp, eq.u), f(xm, eq.u)
+        A[:, c], C[:, c] = (fp - fm) / (2 * h), (yp - ym) / (2 * h)
+    B = np.empty((keep.size, len(iu)))
+    D = np.empty((len(iy), len(iu)))
+    for c, k in enumerate(iu):
+        h = 1.0e-6 * m.input_step(k, eq.u)
+        up, um = eq.u.copy(), eq.u.copy()
+        up[k] += h
+        um[k] -= h
+        (fp, yp), (fm, ym) = f(eq.x, up), f(eq.x, um)
+        B[:, c], D[:, c] = (fp - fm) / (2 * h), (yp - ym) / (2 * h)
+    return LinearModel(A, B, C, D, tuple(m.states[k] for k in keep), tuple(inputs),
+                       tuple(outputs), branch or 'natural')
 
 
-def pilot_root(params: Params, eq: Equilibrium, branch: str) -> float:
-    """``r(P)`` of eq. 18 (``f_p`` renamed, I11): sqrt(P_a) or sqrt(P_l - P_a) [Pa^0.5]."""
-    dp = eq.P_a - params.fluid.P_T if branch == 'pos' else eq.P_l - eq.P_a
-    return math.sqrt(dp)
+def _paper_names(lin: LinearModel) -> LinearModel:
+    """The paper's names on a linear model of the pump alone."""
+    states = {v: k for k, v in STATE_NAMES.items()}
+    return LinearModel(lin.A, lin.B, lin.C, lin.D, tuple(states[s] for s in lin.states),
+                       INPUTS, OUTPUTS, lin.branch)
 
 
-def paper_linear(params: Params, eq: Equilibrium | None = None, branch: str = 'pos'
-                 ) -> LinearModel:
-    """The paper's linear model: eq. 14 (``'pos'``) or eq. 15 (``'neg'``).
-
-    States ``[x_a, p_l]``, inputs ``[i_s, p_u]``, outputs ``[p_l, q_l]``. ``beta`` replaces
-    ``beta_p`` in eq. 15 (I5) and the local load slope ``G_u`` replaces ``mu_u xi_u`` (I10).
-    """
-    eq = equilibrium(params) if eq is None else eq
-    sp, S_a = params.spool, params.actuator.S_a
-    beta, V_l, b_p = params.fluid.beta, params.line.V_l, params.b_p
-    m = params.actuator.mu_a * pilot_root(params, eq, branch)
-    G_u = load_slope(params, eq)
-    pilot = 0.0 if branch == 'pos' else m  # x_c < 0: pilot inflow comes from the line
-    A = np.array([[-m / S_a, 0.0],
-                  [beta / V_l * (b_p - pilot), -beta * G_u / V_l]])
-    B = np.array([[m * sp.phi_s / (S_a * sp.K_a), 0.0],
-                  [beta * pilot * sp.phi_s / (V_l * sp.K_a), beta * G_u / V_l]])
-    C = np.array([[0.0, 1.0],
-                  [b_p - pilot, 0.0]])
-    D = np.array([[0.0, 0.0],
-                  [pilot * sp.phi_s / sp.K_a, 0.0]])
-    return LinearModel(A, B, C, D, ('x_a', 'p_l'), ('i_s', 'p_u'), ('p_l', 'q_l'), branch)
-
-
-def transfer_matrix(params: Params, eq: Equilibrium | None = None, branch: str = 'pos'
-                    ) -> control.TransferFunction:
-    """Eq. 16 as a 2x2 transfer matrix from ``[i_s, p_u]`` to ``[p_l, q_l]``.
-
-    ``G21 = eta r f_z(s) / (s S_a + mu_a r)`` with ``eta = mu_a phi_s / K_a``, ``r`` of eq. 18
-    and ``f_z`` of eq. 17 (``b_p``, or ``b_p + s S_a`` for falling flow).
-    """
-    eq = equilibrium(params) if eq is None else eq
-    sp, S_a, mu_a = params.spool, params.actuator.S_a, params.actuator.mu_a
-    beta, V_l, b_p = params.fluid.beta, params.line.V_l, params.b_p
-    r = pilot_root(params, eq, branch)
-    eta = mu_a * sp.phi_s / sp.K_a
-    G_u = load_slope(params, eq)
-    f_z = [b_p] if branch == 'pos' else [S_a, b_p]
-    pole_a = [S_a, mu_a * r]
-    pole_l = [V_l, beta * G_u]
-    num11 = np.polymul([eta * beta * r], f_z)
-    den11 = np.polymul(pole_a, pole_l)
-    num21 = np.polymul([eta * r], f_z)
-    return control.tf([[num11, [beta * G_u]], [num21, [0.0]]],
-                      [[den11, pole_l], [pole_a, [1.0]]],
-                      inputs=['i_s', 'p_u'], outputs=['p_l', 'q_l'])
-
-
-def eq14_time_constant(params: Params, eq: Equilibrium | None = None, branch: str = 'pos',
-                       keep_Kc: bool = False) -> float:
-    """Dominant time constant ``S_a / (mu_a r)`` of eqs. 14/15 [s] (times ``1 + K_c/K_a``)."""
-    eq = equilibrium(params) if eq is None else eq
-    tau = params.actuator.S_a / (params.actuator.mu_a * pilot_root(params, eq, branch))
-    return tau * (1.0 + params.spool.K_c / params.spool.K_a) if keep_Kc else tau
-
-
-def zero_time_constant(params: Params) -> float:
-    """``tau_z = S_a / b_p`` [s], the zero of eq. 17 for falling flow."""
-    return params.actuator.S_a / params.b_p
+def transfer_matrix(model: Model, eq: SteadyState | None = None,
+                    inputs: Sequence[str] | None = None, outputs: Sequence[str] | None = None,
+                    branch: str = 'pos') -> control.TransferFunction:
+    """The transfer matrix of a linearisation (python-control transfer functions; names
+    with ``_`` for ``.``), by default from the pump's current and the loads' commands to the
+    line and load-sensing pressures and the load flows: eq. 16 generalised (for the pump
+    alone, its closed form is :func:`hydropump_sim.paper.transfer_matrix`)."""
+    eq = equilibrium(model) if eq is None else eq
+    inputs = model.main_inputs() if inputs is None else list(inputs)
+    outputs = model.judged_signals() if outputs is None else list(outputs)
+    return control.ss2tf(linearize(model, eq, branch, inputs=inputs, outputs=outputs).ss())
 
 
 @dataclass(frozen=True)
@@ -209,21 +182,6 @@ def modal_analysis(lin: LinearModel, n_dominant: int = 2) -> list[Mode]:
             dominant=tuple(lin.states[i] for i in order[:n_dominant]),
             participation=tuple(float(part[i]) for i in order[:n_dominant])))
     return sorted(modes, key=lambda m: -m.tau)
-
-
-@dataclass(frozen=True)
-class PerturbationMode:
-    mode: Mode
-    epsilon: float      # tau_mode / T
-    neglected: bool     # outside the control bandwidth
-
-
-def singular_perturbation_check(params: Params, T: float = 0.05, branch: str = 'pos',
-                                eq: Equilibrium | None = None) -> list[PerturbationMode]:
-    """Section IV: ``epsilon = tau/T`` for every fine-model mode; ``epsilon < 1`` is outside
-    the control bandwidth of a controller averaging over ``T`` [s]."""
-    lin = linearize(params, eq, branch)
-    return [PerturbationMode(m, m.tau / T, m.tau < T) for m in modal_analysis(lin)]
 
 
 def bode_data(sys_siso, omega: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -7,10 +7,11 @@ absolute at its edge):
 - :data:`SIGNALS` is the one table of the measured signals (model output, unit, label, kind,
   topic and message type); :data:`SIGNAL_OUTPUTS` names which output of
   :data:`hydropump_sim.model.OUTPUTS` each is (``load_pressure`` is the input ``P_u``);
-- :func:`true_signals` evaluates them at one step;
-- :func:`efforts` gives the generalised forces of ``joint_states`` (solenoid force of eq. 1,
-  actuator force ``P_a S_a`` of eq. 6);
-- :func:`limit_flags` says which physical limit is active (end stops, relief, pressure floor).
+- :class:`Readout` reads them from any model by name (the model says which of its signals
+  each is), with the generalised forces of ``joint_states`` (solenoid force of eq. 1,
+  actuator force ``P_a S_a`` of eq. 6), the physical limit at which it is (end stops,
+  relief, pressure floor), and the topics and joints a circuit adds
+  (:func:`model_topics`, :func:`recorded_topics`).
 """
 
 from __future__ import annotations
@@ -18,8 +19,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
-from .params import Params
 
 FLOAT64 = 'std_msgs/msg/Float64'
 FLUID_PRESSURE = 'sensor_msgs/msg/FluidPressure'
@@ -76,55 +75,137 @@ BENCH_OUTPUT_SIGNALS = tuple(n for n in OUTPUT_SIGNALS if SIGNALS[n].bench)
 # joint_states: joint names and the outputs of their positions and velocities.
 JOINTS = (('spool', 'x_c', 'v_c'), ('swash_plate_actuator', 'x_a', 'v_a'))
 
-# Output name -> index, and the index of P_u in the inputs: filled on first use, so that the
-# table above costs a node that only reads signal names no compiled model (the controller and
-# the recorder start in half a second).
-_Y: dict[str, int] = {}
 
 
-def _index() -> dict[str, int]:
-    if not _Y:
-        from .model import INPUTS, OUTPUTS
-        _Y.update({name: i for i, name in enumerate(OUTPUTS)}, _P_u=INPUTS.index('P_u'))
-    return _Y
+@dataclass(frozen=True)
+class Topic:
+    """A topic a model adds beside the suite's: the signal it carries, its kind
+    (``pressure``: FluidPressure, absolute; anything else: Float64), and the measured signal
+    whose sensor model it takes (``like``, or none)."""
+
+    topic: str
+    signal: str
+    kind: str
+    like: str | None
 
 
-def true_signals(y: np.ndarray, u: np.ndarray) -> dict[str, float]:
-    """Every measured signal at one step, without sensor models (SI, gauge).
+def model_topics(model) -> tuple[list[Topic], list[tuple[str, str]]]:
+    """The topics a model adds (``ls_pressure``, ``loads/<name>/pressure``, ``flow``,
+    ``position``, ``velocity``, ``speed``, ``pressure_b``) and the command topics it takes
+    ``(topic, input)``: ``loads/<name>/command``. A load whose signals are all measured
+    signals of the suite (the paper's load) adds none."""
+    topics: list[Topic] = []
+    m = model.measured()
+    if 'ls_pressure' in m:
+        topics.append(Topic('ls_pressure', m['ls_pressure'], 'pressure', 'line_pressure'))
+    commands = []
+    measured = set(m.values())
+    for name, sig in model.loads().items():
+        if set(v for k, v in sig.items() if k != 'command') <= measured:
+            continue
+        for key, kind, like in (('pressure', 'pressure', 'line_pressure'),
+                                ('pressure_b', 'pressure', 'line_pressure'),
+                                ('flow', 'flow', 'line_flow'), ('position', 'position', None),
+                                ('velocity', 'velocity', None), ('speed', 'speed', None)):
+            if key in sig:
+                topics.append(Topic(f'loads/{name}/{key}', sig[key], kind, like))
+        if 'command' in sig:
+            commands.append((f'loads/{name}/command', sig['command']))
+    return topics, commands
 
-    Parameters
-    ----------
-    y : ndarray, shape (len(OUTPUTS),)
-        Outputs of the step (:meth:`hydropump_sim.Simulator.outputs`).
-    u : ndarray, shape (4,)
-        Held inputs ``[i_s, P_u, xi_u, f_p]``.
+
+def suite_topics() -> list[str]:
+    """The topics every simulator publishes, with the current command and the controller's
+    state (a recorder's default list)."""
+    return ['solenoid_current_cmd', *dict.fromkeys(i.topic for i in SIGNALS.values()),
+            'controller/state']
+
+
+def recorded_topics(circuit_file: str, commands: bool = True) -> list[str]:
+    """The recorder's topics for a circuit: the suite's, then what the circuit adds and
+    (unless not ``commands``: a run that sets them as parameters) its load commands (the
+    structure only: nothing is compiled)."""
+    from .circuit import load_circuit
+    circuit = load_circuit(circuit_file, compile=False)
+    topics, cmds = model_topics(circuit)
+    return suite_topics() + [t.topic for t in topics] + [c[0] for c in cmds if commands]
+
+
+class Readout:
+    """What a simulator publishes of a model, read by name (the indices found once): the
+    measured signals (:data:`SIGNALS`), the joints of the pump's spool and plate with their
+    efforts, the limits it is at, and what the model adds (its topics and joints).
+
+    A model without the paper's load (a load-sensing circuit) gives as ``load_pressure`` its
+    load-sensing pressure (what the margin is taken against) and as ``load_flow`` the sum
+    of its loads' flows.
     """
-    ix = _Y or _index()
-    return {sig: float(u[ix['_P_u']]) if out is None else float(y[ix[out]])
-            for sig, out in SIGNAL_OUTPUTS.items()}
 
+    def __init__(self, model):
+        self.model = model
+        self.params = model.plant_params()
+        m = model.measured()
+        ix = model.signal_index
+        self._signals = {sig: ix(m[sig]) for sig in SIGNALS if sig in m}
+        if 'load_pressure' not in self._signals and 'ls_pressure' in m:
+            self._signals['load_pressure'] = ix(m['ls_pressure'])
+        self._load_flows = None
+        if 'load_flow' not in self._signals:
+            self._load_flows = np.array([ix(v['flow']) for v in model.loads().values()
+                                         if 'flow' in v], dtype=np.int64)
+        pump = model.pump_name()
+        self._pump = {k: ix(f'{pump}.{k}') for k in ('x_c', 'v_c', 'x_a', 'v_a', 'P_a', 'P_l')}
+        self._current = ix(f'{pump}.current') if model.electric_pump() else None
+        self._relieved = np.array([ix(n) for n in model.relieved()], dtype=np.int64)
+        self.topics, self.commands = model_topics(model)
+        self._topics = [ix(t.signal) for t in self.topics]
+        self._joints = [(j, ix(p) if p else None, ix(v) if v else None)
+                        for j, p, v in model.joints()]
 
-def velocities(y: np.ndarray) -> tuple[float, float]:
-    """Spool and plate velocities ``(v_c, v_a)`` [m/s]."""
-    ix = _Y or _index()
-    return float(y[ix['v_c']]), float(y[ix['v_a']])
+    def signals(self, y: np.ndarray) -> dict[str, float]:
+        """Every measured signal at one step, without sensor models (SI, gauge)."""
+        out = {sig: float(y[k]) for sig, k in self._signals.items()}
+        if self._load_flows is not None:
+            out['load_flow'] = float(y[self._load_flows].sum())
+        return out
 
+    def current(self, y: np.ndarray) -> float | None:
+        """The solenoid current of the step [A] (``None``: a pump without one)."""
+        return float(y[self._current]) if self._current is not None else None
 
-def efforts(params: Params, y: np.ndarray) -> tuple[float, float]:
-    """Solenoid force ``phi_s i_s`` (eq. 1) [N] and actuator force ``P_a S_a`` (eq. 6) [N]."""
-    ix = _Y or _index()
-    return (float(params.spool.phi_s * (y[ix['I_s']] - params.I_nominal)),
-            float(y[ix['P_a']] * params.actuator.S_a))
+    def velocities(self, y: np.ndarray) -> tuple[float, float]:
+        """Spool and plate velocities ``(v_c, v_a)`` [m/s]."""
+        return float(y[self._pump['v_c']]), float(y[self._pump['v_a']])
 
+    def efforts(self, y: np.ndarray) -> tuple[float, float]:
+        """Solenoid force ``phi_s i_s`` (eq. 1) [N] and actuator force ``P_a S_a`` (eq. 6)
+        [N]."""
+        p = self.params
+        i_s = (y[self._current] - p.I_nominal) if self._current is not None else 0.0
+        return float(p.spool.phi_s * i_s), float(y[self._pump['P_a']] * p.actuator.S_a)
 
-def limit_flags(params: Params, y: np.ndarray) -> dict[str, bool]:
-    """Which physical limit the step is at: end stops, open relief, the pressure floor."""
-    ix = _Y or _index()
-    return {
-        'spool_at_stop': bool(abs(y[ix['x_c']]) >= params.spool.x_c_max),
-        'plate_at_stop': bool(abs(y[ix['x_a']]) >= params.x_a_stop),
-        'relief_open': bool(y[ix['Q_relief']] > 0.0),
-        'pressure_floor_active': bool(min(y[ix['P_a']], y[ix['P_l']]) + params.fluid.p_atm
-                                      < params.fluid.dp_floor),
-    }
+    def flags(self, y: np.ndarray) -> dict[str, bool]:
+        """Which physical limit the step is at: end stops, an open relief, the pressure
+        floor."""
+        p, k = self.params, self._pump
+        return {
+            'spool_at_stop': bool(abs(y[k['x_c']]) >= p.spool.x_c_max),
+            'plate_at_stop': bool(abs(y[k['x_a']]) >= p.x_a_stop),
+            'relief_open': bool(np.any(y[self._relieved] > 1.0e-7)),
+            'pressure_floor_active': bool(min(y[k['P_a']], y[k['P_l']]) + p.fluid.p_atm
+                                          < p.fluid.dp_floor),
+        }
 
+    def relieved(self, y: np.ndarray) -> float:
+        """The flow of every relief valve [m^3/s]."""
+        return float(y[self._relieved].sum())
+
+    def extra(self, y: np.ndarray) -> dict[str, float]:
+        """The values of :attr:`topics` (true, SI, gauge)."""
+        return {t.topic: float(y[k]) for t, k in zip(self.topics, self._topics)}
+
+    def joints(self, y: np.ndarray) -> tuple[list[str], list[float], list[float]]:
+        """Names, positions and velocities of the model's own joints."""
+        js = self._joints
+        return ([j[0] for j in js], [float(y[j[1]]) if j[1] is not None else 0.0 for j in js],
+                [float(y[j[2]]) if j[2] is not None else 0.0 for j in js])

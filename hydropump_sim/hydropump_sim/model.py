@@ -16,9 +16,10 @@ FINE_STATES = ('x_c', 'v_c', 'x_a', 'v_a', 'P_a', 'P_l')
 FINE_UNITS = ('m', 'm/s', 'm', 'm/s', 'Pa', 'Pa')
 SIMPLIFIED_STATES = ('x_a', 'P_l')
 OUTPUTS = ('I_s', 'x_c', 'v_c', 'x_a', 'v_a', 'P_a', 'P_l', 'Q_p', 'Q_a', 'q_l', 'Q_load',
-           'Q_relief')
+           'Q_relief', 'P_u')
 OUTPUT_UNITS = ('A', 'm', 'm/s', 'm', 'm/s', 'Pa', 'Pa', 'm^3/s', 'm^3/s', 'm^3/s', 'm^3/s',
-                'm^3/s')
+                'm^3/s', 'Pa')
+#: The paper's inputs, as its linear models name them (deviations: ``i_s`` is eq. 2's).
 INPUTS = ('i_s', 'P_u', 'xi_u', 'f_p')
 INPUT_UNITS = ('A', 'Pa', '-', 'Hz')
 
@@ -31,8 +32,10 @@ def state_names(params: Params, model: str = 'fine') -> tuple[str, ...]:
 
 
 def nominal_inputs(params: Params, i_s: float = 0.0) -> np.ndarray:
-    """Input vector ``[i_s, P_u, xi_u, f_p]`` at the parameter file's operating point."""
-    return np.array([i_s, params.line.P_u, params.line.xi_u, params.pump.f_p])
+    """Input vector ``[I_s, P_u, xi_u, f_p]`` (absolute current, ``i_s`` its variation of
+    eq. 2) at the parameter file's operating point."""
+    return np.array([params.I_nominal + i_s, params.line.P_u, params.line.xi_u,
+                     params.pump.f_p])
 
 
 def rhs(t: float, x, u, params: Params, model: str = 'fine', branch: str | None = None,
@@ -46,7 +49,7 @@ def rhs(t: float, x, u, params: Params, model: str = 'fine', branch: str | None 
     x : array_like, shape (n,)
         State, see :func:`state_names` (SI, gauge pressures).
     u : array_like, shape (4,)
-        ``[i_s, P_u, xi_u, f_p]`` in A, Pa, -, Hz; ``i_s`` is the variation of eq. 2.
+        ``[I_s, P_u, xi_u, f_p]`` in A, Pa, -, Hz; ``I_s`` the absolute current.
     params : Params
     model, branch : str
         See :func:`pack`. ``p`` may pass a pre-packed vector instead.

@@ -40,7 +40,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from .measure import efforts, limit_flags, true_signals, velocities
+from .measure import Readout
 from .params import Params
 from .schema import fmt, replace, spec
 from .sensors import SensorBank, SensorProfile
@@ -189,7 +189,8 @@ class Runner:
     Parameters
     ----------
     sim : Simulator
-        The plant; the runner resets it to its initial equilibrium.
+        The model's stepper (the paper's plant or a circuit); the runner resets it to its
+        initial equilibrium and reads it by name (:class:`~hydropump_sim.measure.Readout`).
     cfg : SimulatorConfig
     profile : SensorProfile, optional
         Sensor models (none: ideal sensors).
@@ -210,7 +211,8 @@ class Runner:
                  clock: Callable[[], float] = time.monotonic,
                  sleep: Callable[[float], None] = time.sleep):
         self.sim = sim
-        self.params = sim.params
+        self.params = sim.model.plant_params()
+        self.readout = Readout(sim.model)
         self.cfg = cfg
         self.profile = profile or SensorProfile({})
         self.scenario = {k: v for k, v in (scenario or {}).items() if k != 'current'}
@@ -259,19 +261,23 @@ class Runner:
             plant.steps, plant.t = self.sim.steps, self.sim.t
             plant.take_inputs(self.sim)
             self.sim = plant
+            self.readout = Readout(plant.model)
+        initial = {'current': self.initial_current}
         if self._started:
-            self.sim.set_inputs(**self._pending.pop('inputs', {}))
-            self.sim.reset(self.initial_current, keep_time=True, keep_inputs=True)
+            self._hold({**self._pending.pop('inputs', {}), **initial})
+            self.sim.reset(keep_time=True)
             n = self.cfg.steps_per_period if self.cfg.lock_step else self.cfg.publish_every
             self.sim.steps = (self.sim.steps // n + 1) * n
             self.sim.t = self.sim.steps * self.sim.dt
             self._reset_out = True
         else:
-            self.sim.reset(self.initial_current, keep_time=self.sim.steps > 0)
-        if getattr(self.sim, 'reset_note', None):
+            self.sim.u = self.sim.model.u0.copy()
+            self._hold(initial)
+            self.sim.reset(keep_time=self.sim.steps > 0)
+        if self.sim.reset_note:
             self._log('warn', f'reset: {self.sim.reset_note}; starting from the nearest '
                               'state found')
-        like = {t.topic: t.like for t in getattr(self.sim, 'topics', ()) if t.like}
+        like = {t.topic: t.like for t in self.readout.topics if t.like}
         self.sensors = SensorBank(self.profile, self.sim.dt * self.cfg.publish_every, like)
         self._sensed = {sig for sig in self.sensors.channels
                         if self.profile.spec(like.get(sig, sig)).active}
@@ -283,6 +289,18 @@ class Runner:
         self._last_cmd: float | None = None
         self._watchdog = False
         self._y = self.sim.outputs()
+
+    def _hold(self, values: Mapping[str, float]) -> None:
+        """Hold inputs from the next increment: the operating point's by its names
+        (``current``, ``load_pressure``, ``aperture``, ``shaft_speed``: those the model
+        lacks are ignored, a load-sensing circuit holds no load pressure), any other by the
+        model's own (``boom.command``)."""
+        plant = self.sim.model.plant_inputs()
+        for name, value in values.items():
+            if name in plant:
+                self.sim.set_input(plant[name], value)
+            elif name not in ('current', 'load_pressure', 'aperture', 'shaft_speed'):
+                self.sim.set_input(name, value)
 
     def _warn(self, key: str, text: str, level: str = 'warn') -> None:
         now = self._clock()
@@ -479,34 +497,35 @@ class Runner:
         lo, hi = self.params.I_limits
         # As the Simulator clamps it: diagnostics report what is applied, not what was asked.
         self._applied = min(max(current, lo), hi)
-        self.sim.set_inputs(current=current, **self._pending.pop('inputs', {}))
+        self._hold({'current': current, **self._pending.pop('inputs', {})})
         if self.scenario:
-            self.sim.set_inputs(**{name: float(sig(self.sim.t))
-                                   for name, sig in self.scenario.items()})
+            self._hold({name: float(sig(self.sim.t)) for name, sig in self.scenario.items()})
 
     def _sense(self, name: str, value: float) -> float:
         return self.sensors.channels[name].update(value) if name in self._sensed else value
 
     def _applied_current(self) -> float:
         """The current held from this step on, dither and sensor model included [A]."""
+        value = None
         if self.params.input.dither_amp:
-            value = float(self.sim.outputs()[0])
-        else:
-            value = self.params.I_nominal + float(self.sim.u[0])
+            value = self.readout.current(self.sim.outputs())
+        elif 'current' in self.sim.model.plant_inputs():
+            value = float(self.sim.u[self.sim.model.input_index(
+                self.sim.model.plant_inputs()['current'])])
+        if value is None:  # a pump without a solenoid: its nominal current
+            value = self.params.I_nominal
         return self._sense('solenoid_current', value)
 
     def _emit(self, sink: Sink) -> None:
         y = self.sim.outputs()
         self._y = y
-        true = true_signals(y, self.sim.u)
-        del true['solenoid_current']  # published before the increment, see _applied_current
+        r = self.readout
+        true = r.signals(y)
+        true.pop('solenoid_current', None)  # published before the increment, see above
         signals = {k: self._sense(k, v) for k, v in true.items()}
-        extra, joints = {}, ((), (), ())
-        if hasattr(self.sim, 'extra'):  # a circuit's own topics and joints
-            extra = {k: self._sense(k, v) for k, v in self.sim.extra().items()}
-            joints = self.sim.joints()
-        sink.measurement(Frame(self.sim.t, signals, velocities(y), efforts(self.params, y),
-                               extra, joints))
+        extra = {k: self._sense(k, v) for k, v in r.extra(y).items()}
+        sink.measurement(Frame(self.sim.t, signals, r.velocities(y), r.efforts(y), extra,
+                               r.joints(y)))
 
     # ---- diagnostics (any thread) --------------------------------------------------------
 
@@ -515,7 +534,7 @@ class Runner:
         with self._cv:
             periods = np.array(self._periods)
             age = (self._clock() - self._last_cmd) if self._last_cmd is not None else math.nan
-            snap = {'flags': limit_flags(self.params, self._y), 'stats': dict(self.stats),
+            snap = {'flags': self.readout.flags(self._y), 'stats': dict(self.stats),
                     'failed': self._failed, 'paused': self._paused, 'watchdog': self._watchdog,
                     'command_age': age, 'applied_current': self._applied,
                     'commanded_current': self._current}

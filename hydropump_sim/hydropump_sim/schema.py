@@ -459,6 +459,12 @@ class _StrictLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep)
 
 
+def _load_yaml(text: str) -> Any:
+    """A document read strictly; ``yaml.YAMLError`` or ``RecursionError`` as PyYAML raises
+    them (the callers word them)."""
+    return yaml.load(text, Loader=_StrictLoader)  # noqa: S506 - a SafeLoader subclass
+
+
 def parse_yaml(text: str, where: str) -> Any:
     """A YAML document read strictly (:class:`_StrictLoader`, at most
     :data:`MAX_YAML_BYTES`); :class:`ParamError` names ``where`` and the place."""
@@ -466,7 +472,7 @@ def parse_yaml(text: str, where: str) -> Any:
         raise ParamError([f'{where}: {len(text)} characters, more than the '
                           f'{MAX_YAML_BYTES >> 20} MiB a YAML file of this suite may hold'])
     try:
-        return yaml.load(text, Loader=_StrictLoader)  # noqa: S506 - a SafeLoader subclass
+        return _load_yaml(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, 'problem_mark', None)
         at = f' at line {mark.line + 1}' if mark else ''
@@ -488,9 +494,10 @@ def assignments(items: Iterable[str], what: str = '--set',
             errors.append(f'{what} {item!r}: expected NAME=VALUE, e.g. {example}')
             continue
         try:
-            out[name.strip()] = parse_yaml(text, f'{what} {item!r}')
-        except ParamError as exc:
-            errors += exc.lines
+            out[name.strip()] = _load_yaml(text)
+        except (yaml.YAMLError, RecursionError) as exc:
+            why = getattr(exc, 'problem', None) or 'not a YAML value'
+            errors.append(f'{what} {item!r}: the value is not valid YAML ({why})')
     if errors:
         raise ParamError(errors)
     return out

@@ -1,15 +1,23 @@
-"""Offline simulation, the fixed-increment stepper and the Radau reference.
+"""Offline simulation and the fixed-increment stepper of any model, and the Radau reference.
 
 Inputs are held (zero-order hold) over each integration increment, as a digital current
 driver and the ROS simulator hold them; inside an increment the Rodas4 stepper adapts its own
-steps, so accuracy does not depend on the increment. The dither of ``input.dither_amp`` is
-part of the plant and is evaluated continuously.
+steps, so accuracy does not depend on the increment (or, with ``IntegratorConfig.dense``,
+steps run free of the increments where the inputs hold and the outputs are interpolated).
+A model's own time dependence within an increment (the dither of ``input.dither_amp``) is
+evaluated continuously.
+
+One function and one stepper for every model (:mod:`hydropump_sim.system`):
+``simulate(circuit, duration, {'boom.command': 0.6})`` and ``Simulator(circuit)``; the paper's
+plant is one more model, with the paper's own call as a convenience,
+``simulate(params, duration, current, load_pressure=...)``, whose result also answers by
+the paper's output names (``res.q_l``).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 import math
 from pathlib import Path
 import time
@@ -18,12 +26,15 @@ import numpy as np
 
 from . import _core as c
 from . import integrator as ig
+from . import invariants
 from .errors import HydropumpError, InputError
 from .files import replacing
-from .inputs import sample, Signal
-from .model import INPUTS, OUTPUT_UNITS, OUTPUTS, pack, state_names
-from .params import check_input, Params
-from .trim import equilibrium, operating_inputs
+from .inputs import Signal
+from .model import OUTPUT_UNITS, OUTPUTS
+from .params import Params
+from .plant_model import PumpModel, SIGNAL_NAMES
+from .steady import equilibrium, TrimError
+from .system import Model, Result
 
 
 class IntegrationError(HydropumpError, RuntimeError):
@@ -52,80 +63,54 @@ class IntegratorConfig:
     dense: bool = False
 
 
-@dataclass
-class SimResult:
-    """Time response on a uniform grid (SI units, gauge pressures).
+#: A model's offline runs step free of the increments where the inputs hold.
+OFFLINE_CONFIG = IntegratorConfig(dense=True)
 
-    Attributes ``t``, ``I_s``, ``x_c``, ``v_c``, ``x_a``, ``v_a``, ``P_a``, ``P_l``, ``Q_p``,
-    ``Q_a``, ``q_l``, ``Q_load``, ``Q_relief`` are arrays of equal length. ``x`` holds the model
-    states (columns ``states``), ``u`` the held inputs ``[i_s, P_u, xi_u, f_p]``.
-    """
+#: The paper's input names in a result (``res.xi_u``) -> the model's.
+PAPER_INPUTS = {'P_u': 'load.load_pressure', 'xi_u': 'load.aperture', 'f_p': 'pump.shaft_speed'}
 
-    t: np.ndarray
-    y: np.ndarray
-    x: np.ndarray
-    u: np.ndarray
-    model: str
-    states: tuple
+
+class SimResult(Result):
+    """A run of the paper's plant alone: a :class:`~hydropump_sim.system.Result` that also
+    answers by the paper's names: ``t``, ``I_s``, ``x_c``, ``v_c``, ``x_a``, ``v_a``, ``P_a``,
+    ``P_l``, ``Q_p``, ``Q_a``, ``q_l``, ``Q_load``, ``Q_relief``, ``P_u`` (outputs),
+    ``xi_u``, ``f_p`` and ``i_s`` (the current's variation of eq. 2), SI units, gauge
+    pressures. ``n_clamped`` counts current samples limited to eq. 2."""
+
     n_clamped: int = 0
-    stats: dict = field(default_factory=dict)
 
     def __getattr__(self, name):
-        if name in OUTPUTS:
-            return self.__dict__['y'][:, OUTPUTS.index(name)]
-        if name in INPUTS:
-            return self.__dict__['u'][:, INPUTS.index(name)]
+        if name in SIGNAL_NAMES:
+            return self[SIGNAL_NAMES[name]]
+        if name in PAPER_INPUTS:
+            return self.input(PAPER_INPUTS[name])
+        if name == 'i_s':
+            return self['pump.current'] - self.model.params.I_nominal
         raise AttributeError(name)
 
     @property
     def units(self) -> dict:
         return dict(zip(OUTPUTS, OUTPUT_UNITS))
 
-    def to_npz(self, path: str | Path) -> None:
-        """Save arrays, names and units to ``.npz``."""
-        with replacing(path, 'result') as tmp:
-            np.savez_compressed(tmp, t=self.t, y=self.y, x=self.x, u=self.u,
-                                outputs=np.array(OUTPUTS), units=np.array(OUTPUT_UNITS),
-                                states=np.array(self.states), model=np.array(self.model))
+    @property
+    def paper_y(self) -> np.ndarray:
+        """The outputs in the paper's order (:data:`hydropump_sim.model.OUTPUTS`)."""
+        return self.y[:, [self.model.signal_index(SIGNAL_NAMES[o]) for o in OUTPUTS]]
 
-    @classmethod
-    def from_npz(cls, path: str | Path) -> SimResult:
-        with np.load(path) as d:
-            return cls(t=d['t'], y=d['y'], x=d['x'], u=d['u'], model=str(d['model']),
-                       states=tuple(str(s) for s in d['states']))
+    def to_npz(self, path: str | Path) -> None:
+        """Save arrays, names and units to ``.npz`` (the paper's output names)."""
+        with replacing(path, 'result') as tmp:
+            np.savez_compressed(tmp, t=self.t, y=self.paper_y, x=self.x, u=self.u,
+                                outputs=np.array(OUTPUTS), units=np.array(OUTPUT_UNITS),
+                                states=np.array(self.model.paper_states),
+                                model=np.array(self.model.model))
 
     def to_csv(self, path: str | Path) -> None:
         """Save time and outputs as CSV with a unit row in the header."""
         head = 't [s],' + ','.join(f'{n} [{u}]' for n, u in zip(OUTPUTS, OUTPUT_UNITS))
         with replacing(path, 'result') as tmp:
-            np.savetxt(tmp, np.column_stack([self.t, self.y]), delimiter=',', header=head,
-                       comments='', fmt='%.10g')
-
-
-def input_table(params: Params, t: np.ndarray, current: Signal, load_pressure: Signal = None,
-                aperture: Signal = None, shaft_speed: Signal = None, dt_held: float = 0.0
-                ) -> tuple[np.ndarray, int]:
-    """Held inputs ``[i_s, P_u, xi_u, f_p]`` on ``t``; current clamped to eq. 2. An input
-    given as an array holds each sample for ``dt_held``.
-
-    Returns the table and the number of clamped current samples.
-    """
-    u0 = operating_inputs(params)
-    I_s = sample(current, params.I_nominal, t, 'current', dt_held)
-    lo, hi = params.I_limits
-    n_clamped = int(np.count_nonzero((I_s < lo) | (I_s > hi)))
-    U = np.empty((t.size, c.N_U))
-    U[:, c.U_IS] = np.clip(I_s, lo, hi) - params.I_nominal
-    U[:, c.U_PU] = sample(load_pressure, u0[c.U_PU], t, 'load_pressure', dt_held)
-    U[:, c.U_XI] = sample(aperture, u0[c.U_XI], t, 'aperture', dt_held)
-    U[:, c.U_FP] = sample(shaft_speed, u0[c.U_FP], t, 'shaft_speed', dt_held)
-    # The operating-point inputs take the ranges of their plant parameters.
-    for col, name in ((c.U_PU, 'load_pressure'), (c.U_XI, 'aperture'),
-                      (c.U_FP, 'shaft_speed')):
-        err = check_input(name, U[:, col], t)
-        if err:
-            raise InputError(err)
-    return U, n_clamped
+            np.savetxt(tmp, np.column_stack([self.t, self.paper_y]), delimiter=',',
+                       header=head, comments='', fmt='%.10g')
 
 
 # The largest time grid simulate() builds: output samples and held-input increments.
@@ -156,47 +141,67 @@ def time_grid(duration: float, dt_out: float, dt_max: float, n_u: int = c.N_U,
     return n_out, decim, dt_out / decim
 
 
-def simulate(params: Params, duration: float, current: Signal = None, *, model: str = 'fine',
-             load_pressure: Signal = None, aperture: Signal = None, shaft_speed: Signal = None,
-             x0=None, dt_out: float = 1.0e-3, dt_max: float = 1.0e-3, method: str = 'rodas',
-             config: IntegratorConfig = IntegratorConfig(), rtol: float | None = None,
-             t0: float = 0.0) -> SimResult:
-    """Simulate the fine or the simplified model.
+def _paper_inputs(current, load_pressure, aperture, shaft_speed) -> dict:
+    """The paper call's inputs by the model's names."""
+    return {'pump.current': current, 'load.load_pressure': load_pressure,
+            'load.aperture': aperture, 'pump.shaft_speed': shaft_speed}
+
+
+def simulate(plant: Params | Model, duration: float, current: Signal | Mapping = None, *,
+             model: str = 'fine', load_pressure: Signal = None, aperture: Signal = None,
+             shaft_speed: Signal = None, x0=None, dt_out: float = 1.0e-3,
+             dt_max: float = 1.0e-3, method: str = 'rodas',
+             config: IntegratorConfig | None = None, rtol: float | None = None,
+             t0: float = 0.0) -> Result:
+    """Simulate a model from its steady state at the initial inputs (or ``x0``).
 
     Parameters
     ----------
-    params : Params
-        Plant parameters (:func:`hydropump_sim.load_params`).
+    plant : Model or Params
+        Any model (a circuit: :func:`hydropump_sim.circuit.load_circuit`), or the paper's
+        plant by its parameters (:func:`hydropump_sim.load_params`).
     duration : float
         Simulated time [s].
-    current : float or callable or ndarray or None
-        Absolute solenoid current ``I_s`` [A], a function of time ``t`` [s], or an array of
-        samples each held for ``dt_out`` (sample ``k`` from ``k dt_out`` on, as a recording
-        holds its current); ``None`` is ``I_min + I_max`` (50 %). Values outside eq. 2 are
-        clamped and counted.
+    current : mapping, or float, callable or ndarray
+        For a model: input name (``boom.command``) -> a number, a function of time ``t``
+        [s], or samples each held for ``dt_out``; unnamed inputs hold their values. For the
+        paper's plant: the absolute solenoid current ``I_s`` [A] in those forms (``None``:
+        50 %), clamped to eq. 2 and counted.
     model : {'fine', 'simplified', 'simplified_Kc'}
-        ``'simplified'`` is eq. 10 as printed; ``'simplified_Kc'`` keeps ``K_c``.
-    load_pressure, aperture, shaft_speed : float or callable or ndarray or None
-        ``P_u`` [Pa gauge], ``xi_u`` [-] and ``f_p`` [Hz], in the forms ``current`` takes;
-        ``None`` = parameter file value.
+        The paper plant's form: eq. 10 as printed, or keeping ``K_c``.
+    load_pressure, aperture, shaft_speed
+        The paper plant's ``P_u`` [Pa gauge], ``xi_u`` [-] and ``f_p`` [Hz], as ``current``;
+        ``None`` = the parameter file's values.
     x0 : array_like, optional
-        Initial state; default the equilibrium at the initial inputs.
+        Initial state (``model.states``).
     dt_out : float
         Output grid [s]. Inputs are held over increments of at most ``dt_max``.
     method : {'rodas', 'radau'}
         The compiled Rodas4 stepper, or scipy's Radau (the reference; use a tight ``rtol``).
-    rtol : float, optional
-        Relative tolerance (overrides ``config.rtol``).
+    config, rtol
+        The stepper's settings (``rtol`` overrides ``config.rtol``); by default a circuit
+        steps free of the increments (``dense``: faster where the inputs hold), the
+        paper's plant ends a step at every increment, as the simulator node steps it.
     t0 : float
-        Plant time [s] of the first sample: the phase of the dither (a recording that starts
-        at simulation time ``t0``); inputs and outputs stay on ``0 .. duration``.
+        Model time [s] of the first sample: the phase of a dither (a recording that starts at
+        simulation time ``t0``); inputs and outputs stay on ``0 .. duration``.
 
     Returns
     -------
-    SimResult
+    Result
+        A :class:`SimResult` for the paper's plant.
     """
-    return _simulate([params], duration, current, model, load_pressure, aperture, shaft_speed,
-                     [x0], dt_out, dt_max, method, config, rtol, t0)[0]
+    if isinstance(plant, Params):
+        named = _paper_inputs(current, load_pressure, aperture, shaft_speed)
+        return _simulate([PumpModel(plant, model)], duration, named, [x0], dt_out, dt_max,
+                         method, config or IntegratorConfig(), rtol, t0)[0]
+    if not isinstance(plant, Model):
+        raise InputError(f'simulate: expected a model or plant parameters, got '
+                         f'{type(plant).__name__}')
+    if current is not None and not isinstance(current, Mapping):
+        raise InputError('simulate: a model takes its inputs by name, {name: signal}')
+    return _simulate([plant], duration, current, [x0], dt_out, dt_max, method,
+                     config or OFFLINE_CONFIG, rtol, t0)[0]
 
 
 def simulate_copies(params: Sequence[Params], duration: float, current: Signal = None, *,
@@ -205,9 +210,10 @@ def simulate_copies(params: Sequence[Params], duration: float, current: Signal =
                     dt_max: float = 1.0e-3, config: IntegratorConfig = IntegratorConfig(),
                     rtol: float | None = None, t0: float = 0.0,
                     own_jacobian: bool = False) -> list[SimResult]:
-    """Simulate several parameter sets on the same inputs in one compiled loop, every copy
-    taking the steps that the first one's error control chooses (Rodas4, see
-    :func:`simulate` for the arguments; the inputs are checked against the first set).
+    """Simulate several parameter sets of the paper's plant on the same inputs in one
+    compiled loop, every copy taking the steps that the first one's error control chooses
+    (Rodas4, see :func:`simulate` for the arguments; the inputs are checked against the
+    first set).
 
     With a shared step sequence the difference between two copies is a smooth function of
     their parameters, free of the step-size noise two separate runs would have: divided by
@@ -226,60 +232,68 @@ def simulate_copies(params: Sequence[Params], duration: float, current: Signal =
     x0s = [None] * len(params) if x0 is None else list(x0)
     if len(x0s) != len(params):
         raise InputError(f'x0 has {len(x0s)} states for {len(params)} parameter sets')
-    return _simulate(params, duration, current, model, load_pressure, aperture, shaft_speed,
-                     x0s, dt_out, dt_max, 'rodas', config, rtol, t0, own_jacobian)
+    named = _paper_inputs(current, load_pressure, aperture, shaft_speed)
+    models = [PumpModel(q, model) for q in params]
+    if any(m.states != models[0].states for m in models):
+        raise InputError('the parameter sets have different states (input.tau_s on in '
+                         'some, off in others)')
+    return _simulate(models, duration, named, x0s, dt_out, dt_max, 'rodas', config, rtol, t0,
+                     own_jacobian)
 
 
-def _simulate(plist, duration, current, model, load_pressure, aperture, shaft_speed, x0s,
-              dt_out, dt_max, method, config, rtol, t0, own_jacobian=False):
-    params = plist[0]
-    n_out, decim, dt = time_grid(duration, dt_out, dt_max)
-    n_inc = n_out * decim
-    t_inc = np.arange(n_inc) * dt
-    U, n_clamped = input_table(params, t_inc, current, load_pressure, aperture, shaft_speed,
-                               dt_out)
-    names = state_names(params, model)
-    P = np.array([pack(q, model) for q in plist])
-    X0 = np.empty((len(plist), len(names)))
-    for r, (q, x0) in enumerate(zip(plist, x0s)):
-        if state_names(q, model) != names:
-            raise InputError('the parameter sets have different states (input.tau_s on in '
-                             'some, off in others)')
+def _simulate(models: list[Model], duration, inputs, x0s, dt_out, dt_max, method, config,
+              rtol, t0, own_jacobian=False) -> list[Result]:
+    """Copies of one model structure (their rows of ``p``) on the same inputs."""
+    first = models[0]
+    n_out, decim, dt = time_grid(duration, dt_out, dt_max, len(first.inputs),
+                                 first.n_signals + first.n_states)
+    t_inc = np.arange(n_out * decim) * dt
+    paper = isinstance(first, PumpModel)
+    U, clamped = first.input_table(t_inc, inputs, dt_out,
+                                   clamp=('pump.current',) if paper else ())
+    n = first.n_states
+    X0 = np.empty((len(models), n))
+    for r, (m, x0) in enumerate(zip(models, x0s)):
         if x0 is None:
-            x0 = equilibrium(q, U[0, c.U_IS] + q.I_nominal, load_pressure=U[0, c.U_PU],
-                             aperture=U[0, c.U_XI], shaft_speed=U[0, c.U_FP], model=model).x
+            x0 = equilibrium(m, U[0]).x
         x0 = np.asarray(x0, dtype=float)
-        if x0.shape != (len(names),):
-            raise InputError(f'x0 must have {len(names)} entries ({", ".join(names)})')
+        if x0.shape != (n,):
+            raise InputError(f'x0 must have {n} entries ({", ".join(first.states)})')
         X0[r] = x0
-    Y = np.zeros((len(plist), n_out + 1, c.N_Y))
-    X = np.zeros((len(plist), n_out + 1, len(names)))
+    P = np.array([m.p for m in models])
+    Y = np.zeros((len(models), n_out + 1, first.n_signals))
+    X = np.zeros((len(models), n_out + 1, n))
     stats = np.zeros(2, dtype=np.int64)
     tol = config.rtol if rtol is None else rtol
     if method == 'rodas':
-        _run_rodas(X0, dt, U, P, tol, config, decim, Y, X, stats, t0, own_jacobian)
-    elif t0 and params.input.dither_amp:
+        st = first.structure()
+        if len(models) > 1:  # the time dependence of any copy
+            st['timed'] = any(m.structure()['timed'] for m in models)
+        run_model(ig.model(first.evaluate_c, st), X0, dt, U, P, tol, config, decim, Y, X,
+                  stats, t0, own_jacobian)
+    elif t0 and first.dither:
         raise InputError('t0 (the dither phase) needs the rodas method')
     elif method == 'radau':
-        _run_radau(X0[0], dt, U, P[0], tol, decim, Y[0], X[0], stats)
+        _run_radau(first, X0[0], dt, U, P[0], tol, decim, Y[0], X[0], stats)
     else:
         raise InputError(f'unknown method {method!r}: choose rodas or radau')
     t = np.arange(n_out + 1) * dt_out
     U_out = np.vstack([U[::decim], U[-1:]])
     st = {'accepted': int(stats[0]), 'rejected': int(stats[1])}
-    return [SimResult(t=t, y=Y[r], x=X[r], u=U_out, model=model, states=names,
-                      n_clamped=n_clamped, stats=st) for r in range(len(plist))]
+    out = []
+    for r, m in enumerate(models):
+        res = (SimResult if paper else Result)(m, t, Y[r], X[r], U_out, st)
+        if paper:
+            res.n_clamped = clamped.get('pump.current', 0)
+        res.violations = invariants.check(m, t, res.y, U_out)
+        if res.violations and invariants.strict():
+            raise invariants.InvariantError(res.violations, m.name)
+        out.append(res)
+    return out
 
 
 # Increments per call of the compiled loop: the wall-time budget is checked between calls.
 _CHUNK = 20000
-
-
-def _run_rodas(X0, dt, U, P, rtol, config, decim, Y, X, stats, t0=0.0, own_jacobian=False):
-    """The compiled Rodas4 loop on the paper's plant (rows of ``X0``/``P``: copies, see
-    :func:`simulate_copies`)."""
-    run_model(ig.model(c.evaluate_c, c.structure_rows(P, X0.shape[1])), X0, dt, U, P, rtol,
-              config, decim, Y, X, stats, t0, own_jacobian)
 
 
 def run_model(model: tuple, X0, dt, U, P, rtol, config, decim, Y, X, stats, t0=0.0,
@@ -297,8 +311,8 @@ def run_model(model: tuple, X0, dt, U, P, rtol, config, decim, Y, X, stats, t0=0
         k0, k1 = r0 * decim, r1 * decim
         run = ig.run_dense if config.dense else ig.run
         status, done = run(model, x, t0 + k0 * dt, dt, U[k0:k1], P, rtol, config.h_min,
-                              config.max_steps, decim, Y[:, r0:r1 + 1], X[:, r0:r1 + 1], stats,
-                              budget, own_jacobian)
+                           config.max_steps, decim, Y[:, r0:r1 + 1], X[:, r0:r1 + 1], stats,
+                           budget, own_jacobian)
         t_fail = (k0 + done) * dt
         if status == ig.FAIL_BUDGET:
             raise IntegrationError(
@@ -318,28 +332,24 @@ def run_model(model: tuple, X0, dt, U, P, rtol, config, decim, Y, X, stats, t0=0
                                    f'{config.time_budget:g} s)')
 
 
-def _run_radau(x0, dt, U, p, rtol, decim, Y, X, stats):
+def _run_radau(model: Model, x0, dt, U, p, rtol, decim, Y, X, stats):
     """Reference integration with scipy's Radau over each held-input segment."""
     from scipy.integrate import solve_ivp  # only the reference needs it (0.3 s to import)
     n = x0.size
-    scale = c.state_scale(p, n)
+    scale = model.state_scale
     dx = np.empty(n)
-    ybuf = np.empty(c.N_Y)
-    J = np.empty((n, n))
-    work = np.empty(n)
+    ybuf = np.empty(model.n_signals)
 
     def fun(t, x, u):
         out = np.empty(n)
-        c.evaluate(t, x, u, p, out, ybuf)
+        model.evaluate(t, x, u, p, out, ybuf)
         return out
 
     def jac(t, x, u):
-        f0 = fun(t, x, u)
-        c.jacobian(t, x.copy(), u, p, f0, scale, J, work, ybuf)
-        return J.copy()
+        return model.jacobian(t, x, u, p)
 
     x = x0.copy()
-    c.evaluate(0.0, x, U[0], p, dx, Y[0])
+    model.evaluate(0.0, x, U[0], p, dx, Y[0])
     X[0] = x
     # Join consecutive increments with equal inputs into one call.
     k = 0
@@ -359,87 +369,109 @@ def _run_radau(x0, dt, U, p, rtol, decim, Y, X, stats):
         k = k_end
         if k % decim == 0:
             kk = min(k, n_inc - 1)
-            c.evaluate(t1, x, U[kk], p, dx, Y[row])
+            model.evaluate(t1, x, U[kk], p, dx, Y[row])
             X[row] = x
             row += 1
 
 
 class Simulator:
-    """Fixed-increment stepper for the ROS simulator: holds ``t``, ``x`` and the inputs.
+    """Fixed-increment stepper of any model (the simulator node's): holds ``t``, ``x`` and
+    the inputs ``u`` (by name with :meth:`set_input`).
 
     Parameters
     ----------
-    params : Params
+    plant : Model or Params
+        Any model, or the paper's plant by its parameters.
     dt : float
         Increment [s] that :meth:`step` advances (1 ms for a 1 kHz node).
     model : str
-        Model name, see :func:`hydropump_sim.model.pack`.
+        The paper plant's form (:func:`hydropump_sim.model.pack`).
     config : IntegratorConfig
     """
 
-    def __init__(self, params: Params, dt: float = 1.0e-3, model: str = 'fine',
+    def __init__(self, plant: Params | Model, dt: float = 1.0e-3, model: str = 'fine',
                  config: IntegratorConfig = IntegratorConfig()):
         if not (math.isfinite(dt) and dt > 0):
             raise InputError(f'dt = {dt!r}: expected a positive number of seconds')
-        self.params = params
-        self.model = model
+        self.model = PumpModel(plant, model) if isinstance(plant, Params) else plant
         self.dt = dt
         self.config = config
-        self._p = pack(params, model)
-        self._model = ig.model(c.evaluate_c, c.structure(self._p, len(state_names(params,
-                                                                                   model))))
+        self._stepper = self.model.stepper_model()
         self.stats = np.zeros(2, dtype=np.int64)
-        self.u = operating_inputs(params)
+        self.u = self.model.u0.copy()
         self.t = 0.0
         self.steps = 0
+        #: Why the last reset started from the nearest state found, or ``None``.
+        self.reset_note: str | None = None
         self.reset()
 
-    def reset(self, current: float | None = None, keep_time: bool = False,
-              keep_inputs: bool = False) -> None:
-        """Return to the equilibrium at ``current`` (absolute A) and the parameter file's
-        operating point, or with ``keep_inputs`` the load pressure, aperture and shaft speed
-        held now; time restarts at 0 unless ``keep_time``."""
-        held = {} if not keep_inputs else {
-            'load_pressure': float(self.u[c.U_PU]), 'aperture': float(self.u[c.U_XI]),
-            'shaft_speed': float(self.u[c.U_FP])}
-        self.u = operating_inputs(self.params, current, **held)
-        self.x = equilibrium(self.params, current, model=self.model, **held).x.copy()
+    @property
+    def params(self) -> Params | None:
+        """The paper plant's parameters (``None`` for a circuit)."""
+        return getattr(self.model, 'params', None)
+
+    def reset(self, inputs: Mapping[str, float] | None = None, keep_time: bool = False,
+              keep_inputs: bool = True) -> None:
+        """Back to the steady state at the held inputs (the model's own unless
+        ``keep_inputs``), with ``inputs`` by name over them; time restarts at 0 unless
+        ``keep_time``."""
+        if not keep_inputs:
+            self.u = self.model.u0.copy()
+        for name, v in (inputs or {}).items():
+            self.set_input(name, v)
+        self.reset_note = None
+        # From where the model is (a reset near its operating point is quick), with its
+        # positions back at their start: a reset restores every state.
+        x0 = getattr(self, 'x', None)
+        if x0 is not None:
+            x0 = x0.copy()
+            keep = self.model.integrating
+            x0[keep] = self.model.start_states(self.u)[0][keep]
+        try:
+            eq = equilibrium(self.model, self.u, x0=x0)
+        except TrimError:
+            # No rest at these inputs (a pump whose flow compensated loads take exactly
+            # leaves the pressure free) starts from the nearest state found, and says so.
+            eq = equilibrium(self.model, self.u, strict=False)
+            if eq.residual > 1.0e-5:
+                self.reset_note = (f'no steady state at the held inputs (scaled residual '
+                                   f'{eq.residual:.2e})')
+        self.x = eq.x.copy()
         if not keep_time:
             self.t = 0.0
             self.steps = 0
         self._h = self.dt
 
-    def set_inputs(self, current: float | None = None, load_pressure: float | None = None,
-                   aperture: float | None = None, shaft_speed: float | None = None) -> None:
-        """Hold new inputs from the next increment; the current is absolute [A]."""
-        if current is not None:
-            lo, hi = self.params.I_limits
-            self.u[c.U_IS] = min(max(current, lo), hi) - self.params.I_nominal
-        if load_pressure is not None:
-            self.u[c.U_PU] = load_pressure
-        if aperture is not None:
-            self.u[c.U_XI] = aperture
-        if shaft_speed is not None:
-            self.u[c.U_FP] = shaft_speed
+    def take_inputs(self, other: Simulator) -> None:
+        """Hold what ``other`` (the model this one replaces) holds, input by input where the
+        names agree."""
+        mine, theirs = self.model.inputs, other.model.inputs
+        for k, name in enumerate(mine):
+            if name in theirs:
+                self.u[k] = other.u[theirs.index(name)]
+
+    def set_input(self, name: str, value: float) -> None:
+        """Hold an input from the next increment, limited to its range."""
+        k = self.model.input_index(name)
+        lo, hi = self.model.input_ranges[k]
+        self.u[k] = min(max(float(value), lo), hi)
 
     def step(self) -> None:
-        """Advance one increment ``dt``; raise :class:`IntegrationError` on failure (the
-        state is then left at the start of the increment)."""
+        """Advance one increment; :class:`IntegrationError` on failure (the state is then
+        left at the start of the increment)."""
         t0 = self.steps * self.dt
-        x = self.x.copy()
+        x = self.x.copy()[None]
         cfg = self.config
-        h, status = ig.advance(self._model, t0, t0 + self.dt, x[None], self.u, self._p[None],
+        h, status = ig.advance(self._stepper, t0, t0 + self.dt, x, self.u, self.model.p[None],
                                self._h, cfg.rtol, cfg.h_min, cfg.max_steps, self.stats, False,
-                               c.N_Y)
-        if status != c.OK:
+                               self.model.n_signals)
+        if status != ig.OK:
             raise IntegrationError(f'integration failed at t = {t0:.6g} s (code {status})')
-        self.x = x
+        self.x = x[0]
         self._h = h
         self.steps += 1
         self.t = self.steps * self.dt
 
     def outputs(self) -> np.ndarray:
-        """Outputs at the current state (``OUTPUTS`` layout, SI)."""
-        y = np.empty(c.N_Y)
-        c.evaluate(self.t, self.x, self.u, self._p, np.empty_like(self.x), y)
-        return y
+        """Every signal at the present state (``model.signals``)."""
+        return self.model.rhs(self.t, self.x, self.u)[1]

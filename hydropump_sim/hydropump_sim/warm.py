@@ -29,11 +29,11 @@ def _plant() -> str:
 
 def _circuit(path: str, sets: dict) -> str:
     from .circuit import load_circuit
-    from .circuit_sim import CircuitSimulator, simulate_circuit
+    from .simulate import simulate, Simulator
     c = load_circuit(path, sets)
-    sim = CircuitSimulator(c)
+    sim = Simulator(c)
     sim.step()
-    simulate_circuit(c, 0.01, x0=sim.x)
+    simulate(c, 0.01, x0=sim.x)
     c.jacobian(0.0, sim.x, sim.u)
     return f'{Path(path).name} {sets or ""}'.strip()
 

@@ -18,9 +18,9 @@ import pytest
 
 from hydropump_sim import load_params, simulate
 from hydropump_sim.circuit import CircuitError, load_circuit
-from hydropump_sim.circuit_sim import equilibrium, simulate_circuit
 from hydropump_sim.model import OUTPUTS
 from hydropump_sim.simulate import IntegratorConfig
+from hydropump_sim.steady import equilibrium
 
 from ..conftest import PUMP_YAML, ROOT
 
@@ -29,7 +29,7 @@ CIRCUITS = ROOT / 'config' / 'circuits'
 PAPER_SIGNALS = {'I_s': 'pump.current', 'x_c': 'pump.x_c', 'v_c': 'pump.v_c', 'x_a': 'pump.x_a',
                  'v_a': 'pump.v_a', 'P_a': 'pump.P_a', 'P_l': 'pump.P_l', 'Q_p': 'pump.Q_p',
                  'Q_a': 'pump.Q_a', 'q_l': 'pump.q_l', 'Q_load': 'load.flow',
-                 'Q_relief': 'relief.flow'}
+                 'Q_relief': 'relief.flow', 'P_u': 'load.load_pressure'}
 STEPPED = IntegratorConfig(dense=False)
 
 
@@ -57,7 +57,7 @@ def test_the_paper_circuit_computes_what_the_plant_alone_computes(overrides):
     inputs = dict(current=current, aperture=step(1.0, 0.5, 0.35),
                   load_pressure=step(1.4, 1.2e7, 1.35e7))
     ref = simulate(params, 2.0, **inputs)
-    res = simulate_circuit(circuit, 2.0, {'pump.current': current,
+    res = simulate(circuit, 2.0, {'pump.current': current,
                                           'load.aperture': inputs['aperture'],
                                           'load.load_pressure': inputs['load_pressure']},
                            x0=ref.x[0], config=STEPPED)
@@ -173,7 +173,7 @@ def test_continuity_balances_over_a_duty_cycle():
               'boom.command': lambda t: np.where((np.asarray(t) > 1) & (np.asarray(t) < 6),
                                                  0.8, 0.0),
               'motor.command': step(3.0, 0.0, 0.6)}
-    r = simulate_circuit(c, 10.0, inputs)
+    r = simulate(c, 10.0, inputs)
     floor = c.fluid.dp_floor - c.fluid.p_atm
     assert min(r.node(n).min() for n in c.volume) > floor  # no node cavitated
 

@@ -16,7 +16,8 @@ from scipy.optimize import brentq
 import yaml
 
 from hydropump_sim.circuit import CircuitError, load_circuit
-from hydropump_sim.circuit_sim import equilibrium, simulate_circuit
+from hydropump_sim.simulate import simulate
+from hydropump_sim.steady import equilibrium
 
 RHO, BETA = 870.0, 1.6e9
 FLUID = dict(rho=RHO, beta=BETA, nu=3.2e-5, alpha_air=0.0, p_atm=1.013e5, P_T=0.0)
@@ -146,7 +147,7 @@ def steps(bench, base):
     100 to 200 bar (target opening 0 -> 1), the lagged valve's command 0 -> 0.8."""
     def step(lo, hi):
         return lambda t: np.where(np.asarray(t) >= T0 - 1e-9, hi, lo)
-    return simulate_circuit(bench, 0.25, {'lag_p.pressure': step(1.0e7, 2.0e7),
+    return simulate(bench, 0.25, {'lag_p.pressure': step(1.0e7, 2.0e7),
                                           'dvl.command': step(0.0, 0.8)}, x0=base.x)
 
 

@@ -17,8 +17,9 @@ import pytest
 import yaml
 
 from hydropump_sim.circuit import CircuitError, load_circuit
-from hydropump_sim.circuit_sim import equilibrium, simulate_circuit
 from hydropump_sim.invariants import check, InvariantError
+from hydropump_sim.simulate import simulate
+from hydropump_sim.steady import equilibrium
 
 from ..conftest import ROOT
 
@@ -51,7 +52,7 @@ def start(bench, trapped: float):
 
 def test_a_trapped_volume_above_every_source_is_caught(bench, monkeypatch):
     monkeypatch.delenv('HYDROPUMP_STRICT_INVARIANTS')
-    res = simulate_circuit(bench, 0.05, x0=start(bench, 4.0e7))
+    res = simulate(bench, 0.05, x0=start(bench, 4.0e7))
     assert res['node:trapped'].min() > 3.99e7  # it holds: sealed, with no leakage
     bad = [v for v in res.violations if v.where == 'node trapped']
     assert len(bad) == 1 and bad[0].invariant == 'a pressure above every source'
@@ -64,21 +65,21 @@ def test_a_trapped_volume_above_every_source_is_caught(bench, monkeypatch):
 
 def test_a_pressure_below_absolute_zero_is_caught(bench, monkeypatch):
     monkeypatch.delenv('HYDROPUMP_STRICT_INVARIANTS')
-    res = simulate_circuit(bench, 0.01, x0=start(bench, -2.0e5))
+    res = simulate(bench, 0.01, x0=start(bench, -2.0e5))
     assert [(v.invariant, v.where) for v in res.violations] == [
         ('a pressure below the cavitation floor', 'node trapped')]
 
 
 def test_a_run_at_rest_breaks_nothing_and_strict_runs_raise(bench):
-    rest = simulate_circuit(bench, 0.05)
+    rest = simulate(bench, 0.05)
     assert rest.violations == []
     with pytest.raises(InvariantError) as err:   # the suite runs strict
-        simulate_circuit(bench, 0.05, x0=start(bench, 4.0e7))
+        simulate(bench, 0.05, x0=start(bench, 4.0e7))
     assert 'node trapped' in err.value.lines[0]
 
 
 def test_the_checker_catches_a_component_making_energy(bench):
-    res = simulate_circuit(bench, 0.01)
+    res = simulate(bench, 0.01)
     y = res.y.copy()
     y[3, bench.signal_index('orf.loss')] = -5.0   # a forged sample: an orifice giving power
     found = check(bench, res.t, y, res.u)

@@ -4,8 +4,8 @@ import control
 import numpy as np
 import pytest
 
-from hydropump_sim import paper_linear, singular_perturbation_check, transfer_matrix
 from hydropump_sim.linear import bode_data, linearize
+from hydropump_sim.paper import paper_linear, singular_perturbation_check, transfer_matrix
 
 
 @pytest.mark.parametrize('branch', ['pos', 'neg'])

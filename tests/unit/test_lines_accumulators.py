@@ -21,7 +21,8 @@ import pytest
 import yaml
 
 from hydropump_sim.circuit import CircuitError, load_circuit
-from hydropump_sim.circuit_sim import equilibrium, simulate_circuit
+from hydropump_sim.simulate import simulate
+from hydropump_sim.steady import equilibrium
 
 RHO, BETA, NU, P_ATM = 870.0, 1.6e9, 1.5e-5, 1.013e5
 FLUID = dict(rho=RHO, beta=BETA, nu=NU, alpha_air=0.0, p_atm=P_ATM, P_T=0.0)
@@ -214,7 +215,7 @@ def hammer(hose_bench, hose_steady):
         z = np.clip((np.asarray(t) - T_CLOSE) / t_c, 0.0, 1.0)
         return 1.0 - z * z * (3.0 - 2.0 * z)
 
-    res = simulate_circuit(hose_bench, T_CLOSE + 14.0 * period, {'valve.aperture': aperture},
+    res = simulate(hose_bench, T_CLOSE + 14.0 * period, {'valve.aperture': aperture},
                            x0=hose_steady.x, dt_out=2.0e-5)
     return res, t_c
 
@@ -297,7 +298,7 @@ def charge(acc_bench):
     def ramp(t):
         return 4.0e6 + 1.1e7 * np.clip(np.asarray(t) / 4.0, 0.0, 1.0)
 
-    return simulate_circuit(acc_bench, 6.0, {f'{tag}_s.pressure': ramp for tag in EXPONENTS},
+    return simulate(acc_bench, 6.0, {f'{tag}_s.pressure': ramp for tag in EXPONENTS},
                             x0=start.x, dt_out=1.0e-2)
 
 
@@ -339,14 +340,14 @@ def test_accumulator_nothing_below_precharge(acc_bench):
         assert abs(empty[f'{tag}.volume']) < 1e-9 * V0
         assert abs(empty[f'{tag}.flow']) < 1e-12
 
-    res = simulate_circuit(acc_bench, 1.0, {f'{tag}_s.pressure': swing for tag in EXPONENTS},
+    res = simulate(acc_bench, 1.0, {f'{tag}_s.pressure': swing for tag in EXPONENTS},
                            x0=empty.x, dt_out=1.0e-3)
     for tag in EXPONENTS:
         assert np.max(np.abs(res[f'{tag}.volume'])) < 1e-9 * V0
         assert np.max(np.abs(res[f'{tag}.flow'])) < 1e-9 * V0
 
     full = equilibrium(acc_bench, {f'{tag}_s.pressure': 1.2e7 for tag in EXPONENTS})
-    res = simulate_circuit(acc_bench, 3.0, {f'{tag}_s.pressure': 3.0e6 for tag in EXPONENTS},
+    res = simulate(acc_bench, 3.0, {f'{tag}_s.pressure': 3.0e6 for tag in EXPONENTS},
                            x0=full.x, dt_out=1.0e-3)
     for tag, n in EXPONENTS.items():
         v_full = full[f'{tag}.volume']

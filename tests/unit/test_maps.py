@@ -9,7 +9,7 @@ from hydropump_ctrl.experiments.maps import (
     spool_resonance,
     STEP,
 )
-from hydropump_sim.linear import eq14_time_constant
+from hydropump_sim.paper import eq14_time_constant
 from hydropump_sim.trim import equilibrium
 
 

@@ -13,7 +13,7 @@ import pytest
 from hydropump_ctrl.ident import recording_to_bag
 from hydropump_ctrl.ident.matrix import fit_matrix, linear_elements
 from hydropump_ctrl.ident.synthetic import plant_recording
-from hydropump_sim.linear import zero_time_constant
+from hydropump_sim.paper import zero_time_constant
 from hydropump_sim.params import load_params
 
 from ..conftest import PUMP_YAML

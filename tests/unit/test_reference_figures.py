@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from hydropump_sim import equilibrium, linearize, modal_analysis, simulate
-from hydropump_sim.linear import eq14_time_constant, paper_linear, zero_time_constant
 from hydropump_sim.metrics import fast_fraction, step_figures
+from hydropump_sim.paper import eq14_time_constant, paper_linear, zero_time_constant
 from hydropump_sim.scaling import current_for_displacement
 
 T_STEP = 0.01

@@ -17,7 +17,8 @@ from scipy.optimize import brentq
 import yaml
 
 from hydropump_sim.circuit import CircuitError, load_circuit
-from hydropump_sim.circuit_sim import equilibrium, simulate_circuit
+from hydropump_sim.simulate import simulate
+from hydropump_sim.steady import equilibrium
 
 RHO, BETA = 870.0, 1.6e9
 FLUID = dict(rho=RHO, beta=BETA, nu=3.2e-5, alpha_air=0.0, p_atm=1.013e5, P_T=0.0)
@@ -283,7 +284,7 @@ def test_valve_4_3_spool_step(rig, base):
     exp(-pi zeta / sqrt(1 - zeta^2)) and peak time pi / (omega sqrt(1 - zeta^2)) (2 %), the
     whole curve (0.5 % of the step)."""
     step = 0.5
-    res = simulate_circuit(rig, 0.3, {'v.command': lambda t: np.where(
+    res = simulate(rig, 0.3, {'v.command': lambda t: np.where(
         np.asarray(t) >= T0 - 1e-9, step, 0.0)}, x0=base.x, dt_out=1.0e-4, dt_max=1.0e-4)
     w, z = VALVE['omega'], VALVE['zeta']
     wd = w * math.sqrt(1.0 - z * z)
@@ -307,7 +308,7 @@ def minute(rig, base):
     the hanging load and the held volume drain through their seats."""
     x0 = base.x.copy()
     x0[rig.node_state('nhk')] = P_HOLD
-    return simulate_circuit(rig, 60.0, x0=x0, dt_out=1.0, dt_max=1.0)
+    return simulate(rig, 60.0, x0=x0, dt_out=1.0, dt_max=1.0)
 
 
 def test_counterbalance_holds_load(minute):

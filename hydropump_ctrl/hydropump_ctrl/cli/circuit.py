@@ -112,8 +112,8 @@ def cmd_circuit(args) -> int:
     final = run.final()
     units = {n: run.circuit.signal_units[run.circuit.signal_index(n)] for n in final}
     if csv is not None:
-        from hydropump_sim.circuit_sim import CircuitResult
-        CircuitResult(run.circuit, run.t, run.y, run.y[:, :0], run.u).to_csv(csv)
+        from hydropump_sim.system import Result
+        Result(run.circuit, run.t, run.y, run.y[:, :0], run.u).to_csv(csv)
     how = control + (f' ({run.algorithm}, margin {run.margin / 1e5:.4g} bar)'
                      if control == 'margin' else f' (margin {run.margin / 1e5:.4g} bar)'
                      if control == 'hydromechanical' else '')
@@ -139,21 +139,18 @@ def cmd_circuit(args) -> int:
 
 
 def analysis_text(circuit) -> str:
-    """The paper's method on a circuit (see :mod:`hydropump_sim.circuit_analysis`)."""
-    from hydropump_sim.circuit_analysis import (
+    """The paper's method on a circuit (see :mod:`hydropump_sim.reduction`)."""
+    from hydropump_sim.linear import linearize, modal_analysis, transfer_matrix
+    from hydropump_sim.reduction import (
         EPSILON_STATIC,
-        judged_signals,
-        linearize,
         singular_perturbation,
         T_CONTROL,
-        transfer_matrix,
     )
-    from hydropump_sim.circuit_sim import equilibrium
-    from hydropump_sim.linear import modal_analysis
+    from hydropump_sim.steady import equilibrium
     eq = equilibrium(circuit)
     lines = [f'\nsteady state of {circuit.name} at the held inputs (residual '
              f'{eq.residual:.1e})']
-    for name in judged_signals(circuit):
+    for name in circuit.judged_signals():
         unit = circuit.signal_units[circuit.signal_index(name)]
         lines.append(f'  {name:<28} {_fmt(eq[name], unit)}')
     lin = linearize(circuit, eq, inputs=[], outputs=[])

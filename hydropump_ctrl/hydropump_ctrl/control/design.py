@@ -412,8 +412,8 @@ def step_time_constant(params, d0: float = TAU_STEP[0], d1: float = TAU_STEP[1])
     100.38 ms (docs/reference.md). The fast modes' lag of a fraction of a millisecond is
     folded into it, as a fit folds it into tau.
     """
-    from hydropump_sim.linear import eq14_time_constant
     from hydropump_sim.metrics import step_figures
+    from hydropump_sim.paper import eq14_time_constant
     from hydropump_sim.scaling import current_for_displacement
     from hydropump_sim.simulate import simulate
     from hydropump_sim.trim import equilibrium
@@ -467,7 +467,7 @@ def plant_model(params, profile=None, *, identified: dict | None = None,
     ``tau_down`` in the plant's ratio eq. 15 / eq. 14 (both scale with ``1/mu_a``) and keeps
     the plant's stroke rate.
     """
-    from hydropump_sim.linear import eq14_time_constant, pilot_root, zero_time_constant
+    from hydropump_sim.paper import eq14_time_constant, pilot_root, zero_time_constant
     from hydropump_sim.trim import equilibrium
     ident = dict(identified or {})
     eq = equilibrium(params)

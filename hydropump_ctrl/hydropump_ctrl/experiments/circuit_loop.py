@@ -9,7 +9,7 @@ and the pump under one of three controls, as the simulator and controller nodes 
 
 The controller's embedded model is the pump's (``config/controller.yaml`` beside the
 circuit's plant file, or designed from the plant) with the line capacitance the circuit
-presents at the pump's outlet (:func:`hydropump_sim.circuit_analysis.line_capacitance`):
+presents at the pump's outlet (:func:`hydropump_sim.reduction.line_capacitance`):
 the simplified circuit model the controller needs.
 """
 
@@ -22,16 +22,16 @@ from pathlib import Path
 
 import numpy as np
 
-from hydropump_sim import invariants
 from hydropump_sim.circuit import Circuit, CircuitError
-from hydropump_sim.circuit_analysis import line_capacitance
-from hydropump_sim.circuit_sim import CircuitSimulator, equilibrium, input_table
 from hydropump_sim.errors import InputError
 from hydropump_sim.inputs import Signal
-from hydropump_sim.sensors import SensorBank, SensorConfig, SensorProfile
+from hydropump_sim.reduction import line_capacitance
+from hydropump_sim.sensors import SensorConfig, SensorProfile
+from hydropump_sim.steady import equilibrium
 
 from ..control import ControllerConfig, load_config, make_controller
 from ..control.design import pi_margin_compensated_tuning
+from .harness import LoopRun, run_loop
 
 CONTROLS = ('margin', 'open', 'hydromechanical')
 #: The hydromechanical compensator's default margin [Pa] without a controller configuration.
@@ -39,29 +39,17 @@ MARGIN = 2.0e6
 
 
 @dataclass
-class CircuitRun:
-    """One run: every signal of the circuit on the simulator's grid (``run['boom.flow']``),
-    the inputs, and what the controller saw and did."""
+class CircuitRun(LoopRun):
+    """One run (:class:`.harness.LoopRun`) with the control it ran under."""
 
-    circuit: Circuit
-    t: np.ndarray
-    y: np.ndarray
-    u: np.ndarray
-    control: str
+    control: str = 'open'
     algorithm: str | None = None
     margin: float | None = None
-    t_ctrl: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    meas: dict = field(default_factory=dict)
     info: dict = field(default_factory=dict)
 
-    def __getitem__(self, name: str) -> np.ndarray:
-        return self.y[:, self.circuit.signal_index(name)]
-
-    def input(self, name: str) -> np.ndarray:
-        return self.u[:, self.circuit.input_index(name)]
-
-    def final(self) -> dict[str, float]:
-        return {n: float(self[n][-1]) for n in self.circuit.component_signals()}
+    @property
+    def circuit(self) -> Circuit:
+        return self.model
 
 
 def hydromechanical(circuit: Circuit, margin: float) -> Circuit:
@@ -191,64 +179,23 @@ def run_circuit(circuit: Circuit, duration: float,
                                                     else MARGIN)
         circuit = hydromechanical(circuit, margin)
     settle = (1.5 if control == 'margin' else 0.0) if settle is None else settle
-    n, n0 = int(round(duration / dt)), int(round(settle / dt))
-    t = np.arange(n + 1) * dt
-    U = input_table(circuit, np.maximum(np.arange(-n0, n + 1) * dt, 0.0), inputs, dt)
-    pump = circuit.pump()
-    cur = f'{pump.comp.name}.current' if circuit.electric_pump() else None
-    sim = CircuitSimulator(circuit, dt)
-    eq = equilibrium(circuit, U[0])
-    sim.x, sim.u[:] = eq.x.copy(), eq.u
-    ctrl = None
-    ratio = 1
+    ctrl, start = None, None
     if control == 'margin':
-        if cur is None:
+        if not circuit.electric_pump():
             raise CircuitError([f'{circuit.name}: margin control needs the electro-hydraulic '
                                 'pump (type pump)'])
         _margin_of(circuit)
         # A steady state at the current that feeds the loads: the controller starts from a
         # plant at rest, as a node's controller does after the simulator's start.
-        u0 = eq.u.copy()
-        u0[circuit.input_index(cur)] = start_current(circuit, eq)
-        eq = equilibrium(circuit, u0, x0=eq.x)
-        sim.x, sim.u[:] = eq.x.copy(), eq.u
+        u0, _ = circuit.input_table(np.zeros(1), inputs, dt)
+        eq = equilibrium(circuit, u0[0])
+        start = {f'{circuit.pump_name()}.current': start_current(circuit, eq)}
         ctrl = make_controller(cfg)
-        ratio = int(round(cfg.period / dt))
-        if ratio < 1 or abs(ratio * dt - cfg.period) > 1e-9:
-            raise InputError(f'controller period {cfg.period:g} s is not a multiple of '
-                             f'{dt:g} s')
-    i_cur = circuit.input_index(cur) if ctrl is not None else None
-    index = {k: circuit.signal_index(v) for k, v in circuit.measured().items()}
-    profile = profile or SensorProfile.from_config(SensorConfig())
-    bank = SensorBank(profile, dt, like={'ls_pressure': 'line_pressure'})
-    if ctrl is not None:
-        y = sim.outputs()
-        ctrl.reset(float(sim.u[i_cur]), bank.measure({k: float(y[i]) for k, i in index.items()}))
-    Y = np.empty((n + 1, circuit.n_signals))
-    Uo = np.empty((n + 1, len(circuit.inputs)))
-    t_ctrl, meas_log = [], {}
-    for j in range(-n0, n + 1):
-        row = U[j + n0]
-        if ctrl is not None:
-            row = row.copy()
-            row[i_cur] = sim.u[i_cur]
-        sim.u[:] = row
-        y = sim.outputs()
-        if ctrl is not None and (j + n0) % ratio == 0:
-            meas = bank.measure({k: float(y[i]) for k, i in index.items()})
-            sim.set_input(cur, ctrl.update(j * dt, cfg.period, meas))
-            if j >= 0:
-                t_ctrl.append(j * dt)
-                for k, v in meas.items():
-                    meas_log.setdefault(k, []).append(v)
-        if j >= 0:
-            Y[j] = y
-            Uo[j] = sim.u
-        if j < n:
-            sim.step()
-    violations = invariants.check(circuit, t, Y, Uo)
-    if violations and invariants.strict():
-        raise invariants.InvariantError(violations, circuit.name)
-    return CircuitRun(circuit, t, Y, Uo, control, ctrl.algorithm if ctrl else None, margin,
-                      np.array(t_ctrl), {k: np.array(v) for k, v in meas_log.items()},
-                      {'config': cfg if ctrl is not None else None, 'violations': violations})
+    run = run_loop(circuit, duration, controller=ctrl, inputs=inputs,
+                   profile=profile or SensorProfile.from_config(SensorConfig()), settle=settle,
+                   dt=dt, start=start)
+    return CircuitRun(run.model, run.t, run.y, run.u, run.command, run.t_ctrl, run.state,
+                      run.meas, run.mode, run.violations, control,
+                      ctrl.algorithm if ctrl else None, margin,
+                      {'config': cfg if ctrl is not None else None,
+                       'violations': run.violations})

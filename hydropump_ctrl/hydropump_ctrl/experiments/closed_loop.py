@@ -1,38 +1,35 @@
-"""The pure closed-loop harness: the fine-model Simulator at 1 kHz, the sensor bank, and a
-controller at its own rate with a zero-order hold. No ROS, no DDS.
+"""The paper's plant in closed loop: its runs on the one harness
+(:func:`.harness.run_loop`, the offline twin of the simulator and controller nodes) from a
+trimmed steady state, under a plant variation for robustness cases, with the results by the
+paper's names and the figures of a run (step and disturbance figures, tone amplitudes).
 
-This is the offline twin of the ROS graph (simulator node, controller node): the Simulator owns
-time, the sensors see every plant step, the controller is called every ``1/update_rate`` with
-the measurements of that instant and its command is held until the next call. Events (reference
-and mode changes, load and shaft-speed steps) are scheduled in simulation time.
-
-The controller sees the plant through :func:`hydropump_sim.measure.true_signals`, the
-measurement map of the simulator node, so both feed it the same signals. The result keeps the
-true plant outputs (for judging) and what the controller saw and did; the figures of a run
-(step and disturbance figures, tone amplitudes) are here too.
+Events (reference and mode changes, load and shaft-speed steps) are scheduled in simulation
+time; the controller sees the plant through the simulator node's readout, so both feed it
+the same signals. The result keeps the true plant outputs (for judging) and what the
+controller saw and did.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 import math
-from typing import Any
 
 import numpy as np
 from scipy.optimize import brentq
 
-from hydropump_sim import equilibrium, Simulator, TrimError
+from hydropump_sim import equilibrium, TrimError
 from hydropump_sim.errors import InputError
-from hydropump_sim.measure import true_signals
 from hydropump_sim.metrics import dither_window, moving_average, step_figures, StepFigures
 from hydropump_sim.model import OUTPUTS
 from hydropump_sim.params import Params
-from hydropump_sim.sensors import SensorBank, SensorProfile
+from hydropump_sim.plant_model import PumpModel, SIGNAL_NAMES
+from hydropump_sim.sensors import SensorProfile
 
 from ..control.base import Controller
+from .harness import Event, run_loop
 
-PLANT_EVENTS = {'aperture', 'load_pressure', 'shaft_speed'}
-CONTROLLER_EVENTS = {'reference', 'mode', 'config'}
+__all__ = ['ClosedLoopResult', 'Event', 'PlantVariation', 'dither_free', 'run_closed_loop',
+           'trim_current']
 
 
 @dataclass(frozen=True)
@@ -73,21 +70,6 @@ class PlantVariation:
         parts = [f'{n} x{v:g}' for n, v in (('G0', self.gain), ('tau', self.tau),
                                              ('t_d', self.delay)) if v != 1.0]
         return ', '.join(parts) or 'nominal'
-
-
-@dataclass(frozen=True)
-class Event:
-    """Something that happens at time ``t`` [s].
-
-    ``action`` is ``reference`` (``value`` in SI, for ``mode`` or the current mode), ``mode``
-    (``value`` a mode name), ``config`` (``value`` a mapping of controller parameters), or a
-    plant input: ``aperture`` [-], ``load_pressure`` [Pa gauge], ``shaft_speed`` [Hz].
-    """
-
-    t: float
-    action: str
-    value: Any
-    mode: str | None = None
 
 
 @dataclass
@@ -226,83 +208,21 @@ def run_closed_loop(controller: Controller, duration: float, events=(), *,
         I0 = start_current
     else:
         I0 = trim_current(p, flow=start_flow, margin=start_margin)
-    period = controller.config.period
-    ratio = int(round(period / dt_sim))
-    if ratio < 1 or abs(ratio * dt_sim - period) > 1e-9:
-        raise InputError(f'controller period {period:g} s is not a multiple of dt_sim '
-                         f'{dt_sim:g} s')
-    sim = Simulator(p, dt=dt_sim)
-    sim.reset(I0)
-    bank = SensorBank(prof, dt_sim)
-    n = int(round(duration / dt_sim))
-    t = np.arange(n + 1) * dt_sim
-    Y = np.empty((n + 1, len(OUTPUTS)))
-    U = np.empty((n + 1, 3))
-    cmd = np.empty(n + 1)
-    n_ctrl = n // ratio + 1
-    t_ctrl = np.empty(n_ctrl)
-    st_log: dict[str, list] = {}
-    meas_log: dict[str, list] = {}
-    modes = []
-    pending = sorted(events, key=lambda e: e.t)
-    y = sim.outputs()
-    # The controller starts from the exact steady state, as after a long rest.
-    m0 = true_signals(y, sim.u)
     if mode is not None:
         controller.set_mode(mode)
     if start_flow is not None:
         controller.set_reference(start_flow, 'flow')
     if start_margin is not None:
         controller.set_reference(start_margin, 'margin')
-    controller.reset(I0, m0)
-    k_ctrl = 0
-    n_settle = int(round(settle / dt_sim / ratio)) * ratio
-    for j in range(-n_settle, n + 1):
-        tj = j * dt_sim
-        while j >= 0 and pending and pending[0].t <= tj + 1e-9:
-            _apply(pending.pop(0), sim, controller)
-        y = sim.outputs()
-        m = bank.measure(true_signals(y, sim.u))
-        if j % ratio == 0:
-            u = controller.update(tj, period, m)
-            sim.set_inputs(current=u)
-            if j >= 0:
-                t_ctrl[k_ctrl] = tj
-                for key, val in controller.state().items():
-                    if isinstance(val, (int, float)) and not isinstance(val, bool):
-                        st_log.setdefault(key, []).append(float(val))
-                for key, val in m.items():
-                    meas_log.setdefault(key, []).append(val)
-                modes.append(controller.mode)
-                k_ctrl += 1
-        if j >= 0:
-            Y[j] = y
-            U[j] = sim.u[1:]
-            cmd[j] = controller.command
-        if j < n:
-            sim.step()
-    out = {name: Y[:, i] for i, name in enumerate(OUTPUTS)}
-    out['P_u'], out['xi_u'], out['f_p'] = U[:, 0], U[:, 1], U[:, 2]
+    run = run_loop(PumpModel(p), duration, controller=controller, events=events,
+                   profile=prof, settle=settle, dt=dt_sim, start={'pump.current': I0})
+    out = {name: run[SIGNAL_NAMES[name]] for name in OUTPUTS}
+    out['xi_u'], out['f_p'] = run.input('load.aperture'), run.input('pump.shaft_speed')
     out['margin'] = out['P_l'] - out['P_u']
-    return ClosedLoopResult(t=t, y=out, command=cmd, t_ctrl=t_ctrl[:k_ctrl],
-                            state={k: np.array(v) for k, v in st_log.items()},
-                            meas={k: np.array(v) for k, v in meas_log.items()}, mode=modes,
-                            params=p, profile=prof, variation=variation,
+    return ClosedLoopResult(t=run.t, y=out, command=run.command, t_ctrl=run.t_ctrl,
+                            state=run.state, meas=run.meas, mode=run.mode, params=p,
+                            profile=prof, variation=variation,
                             info={'I0': I0, 'algorithm': controller.algorithm})
-
-
-def _apply(ev: Event, sim: Simulator, controller: Controller) -> None:
-    if ev.action == 'reference':
-        controller.set_reference(ev.value, ev.mode)
-    elif ev.action == 'mode':
-        controller.set_mode(ev.value)
-    elif ev.action == 'config':
-        controller.set_config(ev.value)
-    elif ev.action in PLANT_EVENTS:
-        sim.set_inputs(**{ev.action: ev.value})
-    else:
-        raise InputError(f'unknown event {ev.action!r}: use reference, mode, config, '
-                         f'{", ".join(sorted(PLANT_EVENTS))}')
 
 
 # --- figures of the judged cases --------------------------------------------------------------

@@ -105,7 +105,7 @@ def fig1_experiments(circuit, variants: Sequence[tuple[str, str]] = VARIANTS,
     """The duty cycle once per ``(control, kind)`` on the simulator running ``circuit``
     (:class:`~hydropump_sim.circuit.Circuit` of fig1.yaml: it gives each run's start
     current)."""
-    from hydropump_sim.circuit_sim import equilibrium
+    from hydropump_sim.steady import equilibrium
 
     from .circuit_loop import start_current
     out = []

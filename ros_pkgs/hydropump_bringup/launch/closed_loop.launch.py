@@ -76,7 +76,7 @@ def _nodes(context):
         rec['topics'] = [t.strip() for t in a['topics'].split(',') if t.strip()]
     elif a['circuit_file']:
         # The suite's topics and what the circuit adds (ls_pressure, loads/<name>/...).
-        from hydropump_sim.circuit_plant import recorded_topics
+        from hydropump_sim.measure import recorded_topics
         rec['topics'] = recorded_topics(a['circuit_file'])
     nodes = [
         Node(package='hydropump_ros', executable='simulator', name='simulator', **common,

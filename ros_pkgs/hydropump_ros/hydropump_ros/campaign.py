@@ -307,7 +307,7 @@ def _start_fig1(pool, run_dir: Path, profile_path: Path, quick: bool):
     --circuit)."""
     from hydropump_ctrl.experiments import fig1
     from hydropump_sim.circuit import default_circuit_path, load_circuit
-    from hydropump_sim.circuit_plant import recorded_topics
+    from hydropump_sim.measure import recorded_topics
     from hydropump_sim.params import default_params_path
     path = default_circuit_path().with_name('fig1.yaml')
     variants = fig1.VARIANTS[::3] if quick else fig1.VARIANTS

@@ -64,7 +64,7 @@ def graph_commands(args) -> dict[str, list[str]]:
         rec += _p('output', args.bag)
     topics = args.topics
     if not topics and args.circuit_file:
-        from hydropump_sim.circuit_plant import recorded_topics
+        from hydropump_sim.measure import recorded_topics
         topics = ','.join(recorded_topics(args.circuit_file))
     if topics:
         rec += _p('topics', '[' + topics + ']')

@@ -27,15 +27,15 @@ from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
 
 from hydropump_sim.circuit import default_circuit_path, load_circuit
-from hydropump_sim.circuit_plant import CircuitPlant
 from hydropump_sim.errors import HydropumpError
-from hydropump_sim.measure import FLOW_SIGNALS, JOINTS, PRESSURE_SIGNALS
+from hydropump_sim.measure import FLOW_SIGNALS, JOINTS, model_topics, PRESSURE_SIGNALS
 from hydropump_sim.params import default_params_path, Params
 from hydropump_sim.runner import LIVE_INPUTS, Runner, SimulatorConfig
 from hydropump_sim.scenario import load_scenario, ScenarioError
 from hydropump_sim.scenario import SIGNALS as SCENARIO_INPUTS
 from hydropump_sim.schema import assignments, check_all, ParamError, read_params_file, specs_of
 from hydropump_sim.sensors import load_profile, SensorConfig, SensorProfile
+from hydropump_sim.simulate import Simulator
 
 from . import bridge, entry
 from .conversions import (
@@ -86,11 +86,11 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         self._pub_js = self.create_publisher(JointState, 'joint_states', qos)
         self._pub_i = self.create_publisher(Float64, 'solenoid_current', qos)
         # What the circuit adds: its load-sensing pressure, each load's signals and command.
-        plant = self.runner.sim
+        readout = self.runner.readout
         self._pub_x = {t.topic: self.create_publisher(
             FluidPressure if t.kind == 'pressure' else Float64, t.topic, qos)
-            for t in plant.topics}
-        for topic, name in plant.commands:
+            for t in readout.topics}
+        for topic, name in readout.commands:
             self.create_subscription(Float64, topic,
                                      lambda m, n=name: self.runner.set_input(n, m.data), 10)
         self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
@@ -153,8 +153,9 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         for name, value in d.given.items():  # held from the first step
             if name in self._inputs:
                 circuit.u0[circuit.input_index(self._inputs[name])] = float(value)
+        self.cfg = cfg
         try:
-            plant = CircuitPlant(circuit, dt=cfg.dt)
+            plant = self._simulator(circuit)
         except HydropumpError as exc:
             raise bridge.StartupError([f'{path}: {ln}' for ln in exc.lines or [str(exc)]]) \
                 from None
@@ -162,11 +163,10 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         if cfg.scenario_file:
             try:
                 scenario = load_scenario(cfg.scenario_file, [*SCENARIO_INPUTS,
-                                                             *plant.circuit.all_inputs()]).inputs
+                                                             *circuit.all_inputs()]).inputs
             except ScenarioError as exc:
                 raise bridge.StartupError([f'{cfg.scenario_file}: {ln}' for ln in exc.lines]) \
                     from None
-        self.cfg = cfg
         self.schema_specs = d.specs
         self.runner = Runner(plant, cfg, profile=SensorProfile.from_config(sensors, overrides),
                              scenario=scenario, log=self._log)
@@ -176,17 +176,26 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         return load_circuit(self._circuit_file, assignments(
             sets.split(), 'circuit_sets', 'boom.compensator=post'), plant=self.params)
 
-    def _other_circuit(self, sets: str) -> tuple[CircuitPlant | None, str | None]:
+    def _simulator(self, circuit) -> Simulator:
+        """The stepper of a circuit, which must have a pump."""
+        if circuit.pump() is None:
+            raise HydropumpError([f'{circuit.name}: the simulator node runs a circuit with a '
+                                  'pump (type pump or ls_pump)'])
+        return Simulator(circuit, self.cfg.dt)
+
+    def _other_circuit(self, sets: str) -> tuple[Simulator | None, str | None]:
         """The plant of new ``circuit_sets``, or why not: its topics, commands and joints
         must be those the node has (publishers and subscriptions are made once)."""
         try:
-            plant = CircuitPlant(self._circuit(sets), dt=self.cfg.dt)
+            plant = self._simulator(self._circuit(sets))
         except HydropumpError as exc:
             return None, f'circuit_sets = {sets!r}: ' + '; '.join(exc.lines or [str(exc)])
         old = self.runner.sim
 
-        def face(p):
-            return p.topics, p.commands, p.joints()[0], p.circuit.operator_inputs()
+        def face(sim):
+            topics, commands = model_topics(sim.model)
+            return (topics, commands, [j[0] for j in sim.model.joints()],
+                    sim.model.operator_inputs())
         if face(plant) != face(old):
             return None, (f'circuit_sets = {sets!r} changes the topics or inputs of the '
                           'circuit: restart the simulator with it')
@@ -330,10 +339,11 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         self._m_float = Float64()
         self._m_p = {k: FluidPressure(variance=prof.spec(k).noise_std ** 2)
                      for k in PRESSURE_SIGNALS}
-        plant = self.runner.sim
-        self._m_js = JointState(name=[j[0] for j in JOINTS] + plant.joints()[0])
+        readout = self.runner.readout
+        self._m_js = JointState(name=[j[0] for j in JOINTS]
+                                + [j[0] for j in readout.model.joints()])
         self._m_x = {t.topic: FluidPressure(variance=prof.spec(t.like or '').noise_std ** 2)
-                     if t.kind == 'pressure' else Float64() for t in plant.topics}
+                     if t.kind == 'pressure' else Float64() for t in readout.topics}
         self._p_atm = self.params.fluid.p_atm
 
     def current(self, t: float, value: float) -> None:

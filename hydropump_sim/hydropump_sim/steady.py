@@ -1,0 +1,187 @@
+"""The one steady-state search, for any :class:`~hydropump_sim.system.Model`.
+
+A steady state holds every state still except the *integrating* ones (a cylinder's
+position, which moves at a constant velocity wherever the piston is): they keep their start
+values. The search polishes the model's own starts (:meth:`Model.start_states`: the
+paper pump's closed form, a circuit's pressures from its loads) by Newton's method; where
+none is a steady state the model can hold, it marches the dynamics with the inputs held
+until the free states settle, then polishes. There is no other path: the pump alone and
+every circuit take this one.
+
+Every valve leaks (components/laws.py), so no volume is sealed and every node's pressure is
+determined: a dead-ended volume rests at what its leakages settle it at.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+import time
+
+import numpy as np
+from scipy import optimize
+
+from . import integrator as ig
+from .errors import HydropumpError
+from .system import Model, SteadyState
+
+
+class TrimError(HydropumpError, ValueError):
+    """No steady state exists, or none was found, at the requested inputs."""
+
+
+def equilibrium(model: Model, u=None, *, x0=None, tol: float = 1.0e-9,
+                horizon: float = 30.0, time_budget: float = 30.0, strict: bool = True,
+                accept: float = 1.0e-5) -> SteadyState:
+    """The steady state of ``model`` at held inputs ``u`` (a vector, or values by name;
+    default the model's).
+
+    Parameters
+    ----------
+    x0 : array_like, optional
+        Where to start (a nearby steady state); default the model's own starts.
+    tol : float
+        The scaled residual aimed at: each free state's rate over a 1 ms horizon, as a
+        fraction of its scale.
+    horizon, time_budget : float
+        How long the march may run, in simulated and wall seconds.
+    strict : bool
+        Raise :class:`TrimError` when no steady state is found (else return the nearest
+        state, its ``residual`` saying how far from rest).
+    accept : float
+        The scaled residual still accepted as rest (a nearly singular state: one per cent
+        of a state's scale per second at 1e-5).
+    """
+    if u is None or isinstance(u, Mapping):
+        u = model.input_vector(u)
+    u = np.asarray(u, dtype=float)
+    p = model.p_steady
+    scale = model.state_scale
+    free = ~model.integrating
+    dx = np.empty(model.n_states)
+    y = np.empty(model.n_signals)
+
+    def rates(xv):
+        model.evaluate(0.0, xv, u, p, dx, y)
+        return dx
+
+    def worst(xv):
+        return float(np.max(np.abs(rates(xv)[free] * 1.0e-3 / scale[free]), initial=0.0))
+
+    def polish(xv):
+        if worst(xv) <= tol:
+            return xv
+
+        def resid(z):
+            xt = xv.copy()
+            xt[free] = z * scale[free]
+            return rates(xt)[free] * 1.0e-3 / scale[free]
+        sol = optimize.root(resid, xv[free] / scale[free], method='hybr',
+                            options={'xtol': 1e-13})
+        out = xv.copy()
+        out[free] = sol.x * scale[free]
+        return out if np.all(np.isfinite(out)) and worst(out) < worst(xv) else xv
+
+    def good(xv, level):
+        return model.unphysical(xv, u) is None and worst(xv) <= level
+
+    starts = [np.array(x0, dtype=float)] if x0 is not None else model.start_states(u)
+    x = starts[0]
+    for cand in starts:
+        xp = polish(cand) if model.unphysical(cand, u) is None else cand
+        if good(xp, max(tol, 1.0e-7)):
+            x = xp
+            break
+    else:
+        start = model.clip_start(starts[0]) if hasattr(model, 'clip_start') else starts[0]
+        marched, stopped = _march(model, start, u, p, horizon, time_budget, worst)
+        xp = polish(marched)
+        x = xp if good(xp, max(tol, 1.0e-7)) or worst(xp) < worst(marched) else marched
+        if strict and not good(x, accept):
+            why = model.unphysical(x, u) or (
+                f'the state does not settle (scaled residual {worst(x):.2e} above '
+                f'{accept:.0e}): ' + _describe(model, x, u, p))
+            raise TrimError(f'{model.name}: no steady state found at '
+                            f'{_inputs_text(model, u)}: {why}'
+                            + (f'; {stopped}' if stopped else ''))
+    r = worst(x)
+    return SteadyState(model, x, u, model.rhs(0.0, x, u)[1], r)
+
+
+def _inputs_text(model: Model, u: np.ndarray) -> str:
+    describe = getattr(model, 'describe_inputs', None)
+    return describe(u) if describe else 'the held inputs'
+
+
+def _march(model: Model, x: np.ndarray, u: np.ndarray, p: np.ndarray, horizon: float,
+           time_budget: float, worst: Callable[[np.ndarray], float]
+           ) -> tuple[np.ndarray, str]:
+    """Integrate with held inputs, in chunks of 0.2 s, until the free states settle (the
+    integrating ones held at their start). Returns the state and why the march stopped
+    early (``''`` if it did not)."""
+    dt, chunk = 1.0e-3, 200
+    U = np.tile(u, (chunk, 1))
+    Y = np.empty((1, chunk + 1, model.n_signals))
+    X = np.empty((1, chunk + 1, model.n_states))
+    stats = np.zeros(2, dtype=np.int64)
+    stepper = model.stepper_model(timed=False)
+    held = x[model.integrating].copy()
+    t0 = time.perf_counter()
+    for k in range(int(horizon / (dt * chunk))):
+        status, _ = ig.run(stepper, x[None].copy(), k * dt * chunk, dt, U, p[None], 1.0e-6,
+                           1.0e-12, 20000, 1, Y, X, stats, 2_000_000, False)
+        if status == ig.FAIL_BUDGET:
+            return x, ('the integration toward it took more than 2e+06 solver steps (the '
+                       'parameters make the model very stiff)')
+        if status != ig.OK:
+            return x, 'the integration toward it failed'
+        x = X[0, -1].copy()
+        x[model.integrating] = held
+        if worst(x) < 1.0e-9:
+            break
+        if time.perf_counter() - t0 > time_budget:
+            return x, f'the integration toward it ran out of its {time_budget:g} s time budget'
+    return x, ''
+
+
+def _describe(model: Model, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> str:
+    """The states that still move most, for the error."""
+    dx, _ = model.rhs(0.0, x, u, p)
+    r = np.abs(dx) * 1.0e-3 / model.state_scale
+    r[model.integrating] = 0.0
+    worst = np.argsort(-r)[:3]
+    return ', '.join(f'{model.states[k]} moves at {dx[k]:.3g} {model.state_units[k]}/s'
+                     for k in worst if r[k] > 0)
+
+
+def trim_input(model: Model, name: str, target: Callable[[SteadyState], float], u=None, *,
+               bounds: tuple[float, float] | None = None,
+               xtol: float = 1.0e-7) -> tuple[SteadyState, bool]:
+    """The steady state where ``target(eq) = 0`` by the held input ``name`` (the pump's
+    current for a margin): returns it and whether the target was reached (``False``: the
+    input is at the end of its range, e.g. a demand beyond the pump's maximum flow)."""
+    if u is None or isinstance(u, Mapping):
+        u = model.input_vector(u)
+    u = np.array(u, dtype=float)
+    k = model.input_index(name)
+    lo, hi = bounds or model.input_ranges[k]
+    cache: dict[float, SteadyState] = {}
+    last = [None]
+
+    def at(v):
+        if v not in cache:
+            uu = u.copy()
+            uu[k] = v
+            cache[v] = equilibrium(model, uu, x0=last[0])
+            last[0] = cache[v].x
+        return cache[v]
+
+    f_lo, f_hi = target(at(lo)), target(at(hi))
+    if f_lo * f_hi > 0.0:
+        end = lo if abs(f_lo) < abs(f_hi) else hi
+        return at(end), False
+    v = optimize.brentq(lambda v: target(at(v)), lo, hi, xtol=xtol)
+    return at(v), True
+
+
+#: The package's name for the one search (``hydropump_sim.steady_state``).
+steady_state = equilibrium
