@@ -497,7 +497,7 @@ class Runner:
         lo, hi = self.params.I_limits
         # As the Simulator clamps it: diagnostics report what is applied, not what was asked.
         self._applied = min(max(current, lo), hi)
-        self._hold({'current': current, **self._pending.pop('inputs', {})})
+        self._hold({'current': self._applied, **self._pending.pop('inputs', {})})
         if self.scenario:
             self._hold({name: float(sig(self.sim.t)) for name, sig in self.scenario.items()})
 

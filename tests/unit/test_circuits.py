@@ -80,49 +80,73 @@ def _k(A, rho, C_d=0.65):
     return C_d * A * math.sqrt(2.0 / rho)
 
 
+def _opening(command, overlap=0.1):
+    """A 4/3 valve edge's opening past its overlap (valve_4_3.py), as a fraction."""
+    return min(max((command - overlap) / (1.0 - overlap), 0.0), 1.0)
+
+
+def _held(dp_set, p_band=1.0e5, p_h=3.0e4):
+    """The range of the drop a compensating spool holds: its setting, within half its
+    regulation range and half its hysteresis (pre_compensator.py), as a flow ratio
+    ``sqrt(dp/dp_set)``."""
+    dev = 0.5 * p_band + 0.5 * p_h
+    return math.sqrt((dp_set - dev) / dp_set), math.sqrt((dp_set + dev) / dp_set)
+
+
 def test_pre_compensated_flow_is_the_closed_form_whatever_the_load(fig1):
     """Boom at half command, relief-limited supply (the pump well above the demand): the
-    metered flow is C_d A_max xi sqrt(2 dp_set/rho) for a light and a heavy load."""
+    metered flow is C_d A_max a(xi) sqrt(2 dp/rho) with dp the compensator's setting within
+    its regulation range, for a light and a heavy load; the double-acting cylinder's force
+    balance holds with its meter-out back pressure."""
     rho = fig1.fluid.rho
-    want = _k(2.2e-5, rho) * 0.5 * math.sqrt(1.0e6)
+    want = _k(2.2e-5, rho) * _opening(0.5) * math.sqrt(1.0e6)
+    lo, hi = _held(1.0e6)
+    flows = []
     for force in (2.0e4, 6.0e4, 9.0e4):
         eq = equilibrium(fig1, {'pump.current': 0.7, 'boom.command': 0.5,
                                 'boom.force': force})
-        # The cylinder's force balance: load and viscous friction on the piston.
-        assert eq['boom.pressure'] == pytest.approx(
-            (force + 2.0e4 * eq['boom.velocity']) / 5.03e-3, rel=1e-3)
-        assert eq['boom.flow'] == pytest.approx(want, rel=0.01), force
-        assert eq['relief.flow'] > 0  # the supply is not what limits the flow
+        # The cylinder's force balance: load, viscous friction, the rod side's pressure.
+        assert eq['boom.pressure'] * 5.03e-3 - eq['boom.pressure_b'] * 2.57e-3 == \
+            pytest.approx(force + 2.0e4 * eq['boom.velocity'], rel=1e-3)
+        assert lo * want <= eq['boom.flow'] <= hi * want, force
+        assert eq['relief.flow'] > 1e-5  # the supply is not what limits the flow
+        flows.append(eq['boom.flow'])
+    assert np.ptp(flows) < (hi - lo) * want  # whatever the load
 
 
 def test_the_priority_load_keeps_its_flow_while_the_others_vary(fig1):
     """Steering at half command behind the priority valve: its flow is its metering
-    edge's at the priority spring, C_d A xi sqrt(2 dp_pr/rho), as the loads on demand
-    start and stop."""
-    want = _k(8.0e-6, fig1.fluid.rho) * 0.5 * math.sqrt(7.0e5)
+    edge's at the priority spring, C_d A a(xi) sqrt(2 dp_pr/rho) within the spool's
+    regulation range, as the loads on demand start and stop."""
+    want = _k(8.9e-6, fig1.fluid.rho) * _opening(0.5) * math.sqrt(7.0e5)
+    lo, hi = _held(7.0e5)
     for boom, motor in ((0.0, 0.0), (0.8, 0.0), (0.8, 0.6), (0.2, 1.0)):
         eq = equilibrium(fig1, {'pump.current': 0.9, 'boom.command': boom,
                                 'motor.command': motor})
-        assert eq['steering.flow'] == pytest.approx(want, rel=0.01), (boom, motor)
+        assert lo * want <= eq['steering.flow'] <= hi * want, (boom, motor)
 
 
 def _saturated(circuit):
     """Boom and motor fully open with the steering: more than the pump's 67.5 L/min, the
-    pump at full displacement."""
+    pump at full displacement, the relief valve shut (its seat's leakage only)."""
     eq = equilibrium(circuit, {'pump.current': 0.9, 'boom.command': 1.0,
                                'motor.command': 1.0})
     q_max = circuit.pump().comp.params.plant.Q_max
     assert eq['pump.Q_p'] == pytest.approx(q_max, rel=1e-3)
-    assert eq['relief.flow'] < 1e-9
+    assert eq['relief.flow'] < 1e-7
     return eq
 
 
 def test_flow_sharing_keeps_the_demand_ratio_when_the_pump_saturates(fig1):
     """Post-compensated: every metering edge sees the same drop, so the loads share the
-    flow in the ratio of their openings (2.2e-5 : 1.8e-5 m^2), whatever their pressures."""
+    flow in the ratio of their openings (2.2e-5 : 1.8e-5 m^2), whatever their pressures,
+    within what the compensators' regulation ranges leave of that drop."""
     post = fig1.with_values({'boom.compensator': 'post', 'motor.compensator': 'post'})
     eq = _saturated(post)
-    assert eq['boom.flow'] / eq['motor.flow'] == pytest.approx(2.2e-5 / 1.8e-5, rel=0.01)
+    drop = eq['node:demand'] - eq['node:ls'] - 1.0e6
+    spread = (0.5e5 + 0.5 * 3.0e4) / drop   # the spools' band, as a share of the drop
+    assert eq['boom.flow'] / eq['motor.flow'] == pytest.approx(2.2e-5 / 1.8e-5,
+                                                               rel=max(spread, 0.01))
     # Both slowed: each gets less than it does alone.
     alone = equilibrium(post, {'pump.current': 0.9, 'boom.command': 1.0})
     assert eq['boom.flow'] < 0.9 * alone['boom.flow']
@@ -135,14 +159,15 @@ def test_pre_compensation_starves_the_highest_load_first(fig1):
     eq = _saturated(fig1)
     boom_full = _k(2.2e-5, rho) * math.sqrt(1.0e6)
     motor_full = _k(1.8e-5, rho) * math.sqrt(1.0e6)
+    lo, hi = _held(1.0e6)
     assert eq['boom.pressure'] < eq['motor.pressure']
-    assert eq['boom.flow'] == pytest.approx(boom_full, rel=0.01)
+    assert lo * boom_full <= eq['boom.flow'] <= hi * boom_full
     assert eq['motor.flow'] < 0.9 * motor_full
     # The highest load swapped (a light motor, a heavy boom): the boom now starves.
     heavy = equilibrium(fig1, {'pump.current': 0.9, 'boom.command': 1.0,
                                'motor.command': 1.0, 'boom.force': 7.0e4,
                                'motor.torque': 20.0})
-    assert heavy['motor.flow'] == pytest.approx(motor_full, rel=0.01)
+    assert lo * motor_full <= heavy['motor.flow'] <= hi * motor_full
     assert heavy['boom.flow'] < 0.9 * boom_full
 
 
@@ -166,32 +191,36 @@ def test_margin_control_holds_the_margin_over_the_highest_load(fig1, algorithm, 
 
 def test_continuity_balances_over_a_duty_cycle():
     """10 s: the pump stepped, loads switched on and off. The volume delivered, less what
-    returned to tank and what the cylinders swept, is what the nodes stored."""
+    returned to tank and what the cylinders' chambers swept, is what the nodes stored,
+    ``sum integral V_i(t) dP_i / beta`` (the chambers' volumes follow the pistons): the
+    meters are exact to the stepper's rounding, the stored volume is integrated from the
+    samples (trapezoids on 0.5 ms), so the balance holds to 1e-3 of the stored volume."""
     c = load_circuit(CIRCUITS / 'fig1.yaml', meters=('pump.q_l', 'tank.flow'))
     inputs = {'pump.current': step(5.0, 0.45, 0.6),
               'steering.command': lambda t: np.where(np.asarray(t) % 5.0 < 3.0, 0.5, 0.0),
               'boom.command': lambda t: np.where((np.asarray(t) > 1) & (np.asarray(t) < 6),
                                                  0.8, 0.0),
               'motor.command': step(3.0, 0.0, 0.6)}
-    r = simulate(c, 10.0, inputs)
+    r = simulate(c, 10.0, inputs, dt_out=5.0e-4)
     floor = c.fluid.dp_floor - c.fluid.p_atm
     assert min(r.node(n).min() for n in c.volume) > floor  # no node cavitated
 
     def delta(state):
         k = c.states.index(state)
         return r.x[-1, k] - r.x[0, k]
-    swept = sum(pt.comp.params.A_a * delta(f'{pt.comp.name}.position')
+    swept = sum((pt.comp.params.A_a - pt.comp.params.A_b) * delta(f'{pt.comp.name}.position')
                 for pt in c.role('actuator') if hasattr(pt.comp.params, 'A_a'))
     left = delta('meter:pump.q_l') - delta('meter:tank.flow') - swept
-    stored = sum(v / c.fluid.beta * delta(f'node:{n}') for n, v in c.volume.items())
-    assert delta('meter:pump.q_l') > 1e3 * abs(stored)  # the balance is a small difference
-    assert left == pytest.approx(stored, rel=1e-6)
+    stored = sum(np.trapezoid(r[f'node:{n}.volume'], r.node(n)) / c.fluid.beta
+                 for n in c.volume)
+    assert delta('meter:pump.q_l') > 1e2 * abs(stored)  # the balance is a small difference
+    assert left == pytest.approx(stored, rel=1e-3)
 
 
 @pytest.mark.parametrize('sets, words', [
     ({'boom.compensator': 'mid'}, ['boom.compensator', 'pre, post, none']),
     ({'boom.valve.A_mx': 1.0e-5}, ['boom.valve.A_mx', 'did you mean A_max']),
-    ({'boom.command': 3.0}, ['boom.valve.command', '[0, 1]']),
+    ({'boom.command': 3.0}, ['boom.valve.command', '[-1, 1]']),
     ({'relief.p_full': 1.0e7}, ['relief', 'p_full', 'p_crack']),
     ({'bom.command': 0.5}, ['bom', 'did you mean boom']),
 ])

@@ -78,8 +78,8 @@ class ValveParams:
                       default=0.02)
     dp_cr: float = spec('Pa', 'laminar/turbulent transition', 0.0, 1.0e6, default=5.0e4)
     command: float = spec('-', 'command 0..1 (an input)', 0.0, 1.0, default=0.0)
-    A_ls: float = spec('m^2', 'area of the load-sensing passage (ls port)', 1.0e-10, 1.0e-4,
-                       default=1.0e-6)
+    A_ls: float = spec('m^2', 'area of the load-sensing passage (ls port): a 2 mm drilling',
+                       1.0e-10, 1.0e-4, default=3.0e-6)
     ls_open: float = spec('-', 'spool opening at which the load-sensing passage is fully '
                           'switched from drain to the work port', 1.0e-3, 1.0, default=0.05)
     G_leak: float = spec('m^3/(s Pa)', "leakage of the closed edge (a spool's clearance: 0.1 "

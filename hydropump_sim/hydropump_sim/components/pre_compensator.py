@@ -13,12 +13,16 @@ first.
 ``p_band`` is the regulation range (the spring's gradient over the stroke: the drop moves by
 it from closed to fully open), ``p_h`` the hysteresis of the spool's friction, ``r_ff`` the
 steady flow force (it closes a spool) as a droop of the held drop with the flow. The edge
-passes flow both ways (a spool), and leaks ``G_leak`` when closed. Defaults: a 10 ms lag
-and a 1 bar regulation range (Hopsan's compensating valve: 10 ms; Simscape's pressure
-compensator: a regulation range from about 1 bar), 0.3 bar of hysteresis (friction of a
-compensator spool, a few per cent of its 10-20 bar spring; Hopsan's 5 bar is a relief
-valve's), the flow-force droop of Hopsan's ``k_cf`` (1 bar per 60 L/min). With ``tau = 0``
-the spool is static (no hysteresis nor droop: they need its state).
+passes flow both ways (a spool), and leaks ``G_leak`` when closed; ``check`` puts the
+section's load-holding check after it (no reverse flow, a seat's leakage only), as a
+pre-compensated section has between its compensator and its directional spool.
+
+Defaults: a 10 ms lag and a 1 bar regulation range (Hopsan's compensating valve: 10 ms;
+Simscape's pressure compensator: a regulation range from about 1 bar), 0.3 bar of
+hysteresis (friction of a compensator spool, a few per cent of its 10-20 bar spring;
+Hopsan's 5 bar is a relief valve's), the flow-force droop of Hopsan's ``k_cf`` (1 bar per
+60 L/min). With ``tau = 0`` the spool is static (no hysteresis nor droop: they need its
+state).
 """
 
 from dataclasses import dataclass
@@ -28,7 +32,7 @@ import numpy as np
 from ..jitcache import jit
 from ..schema import spec
 from .base import Component, PortSpec, SignalSpec, StateSpec
-from .laws import balance, clip01, edge, G_LEAK_SPOOL, spool_rate
+from .laws import balance, clip01, edge, G_LEAK_POPPET, G_LEAK_SPOOL, spool_rate
 from .orifice import coefficient
 
 
@@ -38,13 +42,13 @@ def kernel(t, x, dx, u, p, y, P, Q, V):
     k, dp_set, p_band, tau, dp_cr, p_h, r_ff, g = p[3], p[4], p[5], p[6], p[7], p[8], p[9], p[10]
     held = P[b] - P[c]
     dp = P[a] - P[b]
-    if tau > 0.0:
-        s = clip01(x[0])
-        q = edge(k, s, dp, dp_cr, g)
-        dx[0] = spool_rate(x[0], dp_set - held - r_ff * q, p_band, p_h, tau)
+    s = clip01(x[0]) if tau > 0.0 else balance(dp_set - held, p_band)
+    if dp < 0.0 and p[11] > 0.0:
+        q = G_LEAK_POPPET * dp  # the load-holding check is shut
     else:
-        s = balance(dp_set - held, p_band)
         q = edge(k, s, dp, dp_cr, g)
+    if tau > 0.0:
+        dx[0] = spool_rate(x[0], dp_set - held - r_ff * q, p_band, p_h, tau)
     Q[a] -= q
     Q[b] += q
     y[0] = q
@@ -67,6 +71,8 @@ class CompensatorParams:
     dp_cr: float = spec('Pa', 'laminar/turbulent transition', 0.0, 1.0e6, default=5.0e4)
     G_leak: float = spec('m^3/(s Pa)', "leakage of the closed spool (a spool's clearance: "
                          '0.1 L/min at 100 bar)', 0.0, 1.0e-9, default=G_LEAK_SPOOL)
+    check: bool = spec('-', "a load-holding check after the spool (pre; a post "
+                       "compensator's spool is one)", default=False)
 
 
 SIGNALS = (SignalSpec('flow', 'm^3/s', 'flow in -> out'),
@@ -92,7 +98,7 @@ class SpoolCompensator(Component):
     def pack(self):
         r = self.params
         return [coefficient(r.C_d, r.A_max, self.fluid.rho), r.dp_set, r.p_band, r.tau,
-                r.dp_cr, r.p_h, r.r_ff, r.G_leak]
+                r.dp_cr, r.p_h, r.r_ff, r.G_leak, float(r.check)]
 
     def initial_state(self, P, u):
         return np.array([1.0]) if self.params.tau > 0.0 else np.array([])

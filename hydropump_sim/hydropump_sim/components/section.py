@@ -1,15 +1,41 @@
-"""A load section of a load-sensing valve block (a composite): a proportional meter-in
-valve, a pressure compensator before it (``pre``), after it (``post``, flow sharing) or
-none (a priority load, whose priority valve compensates it), and the actuator it drives (a
-cylinder or a motor). Its ports: ``supply``, ``tank``, ``load`` (the actuator's node, which
-the shuttle network senses) and ``ls`` (the load-sensing line, for ``post``).
+"""A load section of a load-sensing valve block (a composite), as a real machine's: a
+proportional 4/3 valve (``valve_4_3``: meter-in and meter-out edges, closed centre, the
+section's load-sensing signal from A or B by the spool's sign), a pressure compensator
+before it (``pre``), after it (``post``, flow sharing) or none (a priority load, whose
+priority valve compensates it), and the actuator it drives: a cylinder (double-acting when
+its ``A_b`` is given, else single-acting with port B plugged) or a motor. Optional, as the
+hardware has them:
 
-Parameters: ``actuator``, ``compensator``, ``V_mid`` (the volume between compensator and
-valve), and the parts' own under ``valve.``, ``comp.`` and ``cylinder.`` or ``motor.``.
-The section's inputs are ``command`` (the valve, 0..1) and ``force`` or ``torque``; its
-signals ``flow`` (metered), ``pressure`` (the load's), ``opening``, and ``position`` and
-``velocity`` or ``speed``. Every part's own inputs and signals stay reachable by their full
-names (``boom.comp.opening``).
+- ``brake``: a counterbalance (brake, over-centre) valve in each work line, piloted by the
+  other, so that a hanging load or a swinging mass is held and driven down or braked under
+  control, not by the spool's leakage;
+- ``relief``: port reliefs (each work line to tank, a cylinder's shock reliefs) or, for a
+  motor, cross-port reliefs (each line to the other, a swing's);
+- ``makeup``: anti-cavitation checks from tank into each work line.
+
+Ports: ``supply``, ``tank``, ``load`` (the actuator's A side, which other components may
+share), ``load_b`` (its B side; optional: a section node otherwise), ``sense`` (the
+section's load-sensing signal, to the shuttle network) and ``ls`` (the load-sensing line,
+for ``post``).
+
+Wiring, by compensator:
+
+- ``pre``: supply -> compensator (sensing the section's signal, a load-holding check in
+  it) -> mid -> valve P; valve A/B -> the actuator;
+- ``post`` (Rexroth's LUDV): supply -> valve P; valve A/B -> mid_a/mid_b -> a compensator
+  on the load-sensing line -> the actuator, with a return check around each (the
+  compensator is also the section's load-holding check); the section's signal is its load
+  pressure, behind the compensator;
+- ``none``: supply -> valve P; valve A/B -> the actuator.
+
+Parameters: ``actuator``, ``compensator``, the volumes ``V_mid``, ``V_sense``, ``V_line``,
+``makeup``, and the parts' own under ``valve.``, ``comp.``, ``cylinder.`` or ``motor.``,
+``brake.`` (a counterbalance's), ``relief.`` (a relief's) and ``check.`` (the make-up
+checks'). The section's inputs are ``command`` (the valve, -1..1: + drives A) and
+``force`` or ``torque``; its signals ``flow`` (metered into A, net of what A returns),
+``pressure`` (the actuator's A side), ``pressure_b``, ``opening`` (the spool), and
+``position`` and ``velocity``, or ``speed`` and ``angle``. Every part's own inputs and
+signals stay reachable by their full names (``boom.comp.opening``).
 """
 
 from __future__ import annotations
@@ -21,7 +47,8 @@ from typing import Any
 from ..schema import build, ParamError, spec, unknown_key_line
 from .base import Component, Expansion, InputSpec, PortSpec, SignalSpec
 
-GROUPS = ('valve', 'comp', 'cylinder', 'motor')
+GROUPS = ('valve', 'comp', 'cylinder', 'motor', 'brake', 'relief', 'check')
+OWN = ('actuator', 'compensator', 'V_mid', 'V_sense', 'V_line', 'makeup')
 
 
 @dataclass(frozen=True)
@@ -30,10 +57,14 @@ class SectionOptions:
     compensator: str = spec('-', 'pressure compensator: pre (before the valve), post (after '
                             'it, flow sharing) or none', choices=('pre', 'post', 'none'),
                             default='pre')
-    V_mid: float = spec('m^3', 'volume between the compensator and the valve', 1.0e-9, 1.0e-2,
-                        default=1.0e-5)
+    V_mid: float = spec('m^3', 'volume between compensator and valve (each, post)', 1.0e-9,
+                        1.0e-2, default=1.0e-5)
     V_sense: float = spec('m^3', 'volume of the load-sensing signal passage', 1.0e-9, 1.0e-3,
                           default=1.0e-6)
+    V_line: float = spec('m^3', 'volume of a work line between valve and brake valve', 1.0e-9,
+                         1.0e-2, default=1.0e-4)
+    makeup: bool = spec('-', 'anti-cavitation checks from tank into each work line',
+                        default=False)
 
 
 @dataclass(frozen=True)
@@ -44,21 +75,25 @@ class SectionSetup:
 
 class Section(Component):
     kind = 'section'
-    doc = 'load section: meter-in valve, pre/post/no compensator, cylinder or motor'
+    doc = 'load section: 4/3 valve, pre/post/no compensator, cylinder or motor, brake valves'
     PORTS = (PortSpec('supply', 'pressure supply'), PortSpec('tank', 'return'),
-             PortSpec('load', "the actuator's node"),
-             PortSpec('sense', "the section's load-sensing signal: the load pressure while "
-                      'the valve is open, tank while it is closed', optional=True),
+             PortSpec('load', "the actuator's A side"),
+             PortSpec('load_b', "the actuator's B side (a section node if not given)",
+                      optional=True),
+             PortSpec('sense', "the section's load-sensing signal: A or B while the valve "
+                      'is open, tank while it is closed', optional=True),
              PortSpec('ls', 'load-sensing line (post-compensated sections)', optional=True))
-    INPUTS = (InputSpec('command', '-', 'valve command 0..1', 0.0, 1.0, 0.0),
+    INPUTS = (InputSpec('command', '-', 'valve command -1..1 (+ drives A)', -1.0, 1.0, 0.0),
               InputSpec('force', 'N', 'cylinder: external force', -1.0e7, 1.0e7, 0.0),
               InputSpec('torque', 'N m', 'motor: load torque', -1.0e6, 1.0e6, 0.0))
-    SIGNALS = (SignalSpec('flow', 'm^3/s', 'metered flow to the load'),
-               SignalSpec('pressure', 'Pa', 'load pressure'),
-               SignalSpec('opening', '-', 'valve spool opening'),
+    SIGNALS = (SignalSpec('flow', 'm^3/s', 'metered flow into the A side'),
+               SignalSpec('pressure', 'Pa', 'load pressure, A side'),
+               SignalSpec('pressure_b', 'Pa', 'load pressure, B side'),
+               SignalSpec('opening', '-', 'valve spool, -1..1'),
                SignalSpec('position', 'm', 'cylinder position'),
                SignalSpec('velocity', 'm/s', 'cylinder velocity'),
-               SignalSpec('speed', 'rad/s', 'motor speed'))
+               SignalSpec('speed', 'rad/s', 'motor speed'),
+               SignalSpec('angle', 'rad', 'motor shaft angle'))
 
     @classmethod
     def build_params(cls, values: Mapping[str, Any], source: str | None = None):
@@ -70,9 +105,8 @@ class Section(Component):
                 parts[head][rest] = value
             else:
                 own[key] = value
-        own_names = ('actuator', 'compensator', 'V_mid', 'V_sense')
-        names = [f'{g}.' for g in GROUPS] + list(own_names)
-        errors = [unknown_key_line(k, names) for k in own if k not in own_names]
+        names = [f'{g}.' for g in GROUPS] + list(OWN)
+        errors = [unknown_key_line(k, names) for k in own if k not in OWN]
         if errors:
             raise ParamError(errors, source)
         return SectionSetup(build(SectionOptions, own, source), parts)
@@ -91,40 +125,80 @@ class Section(Component):
             raise ParamError([f'{n}: {other}.* given, but the actuator is a {act}'])
         if o.compensator == 'none' and parts['comp']:
             raise ParamError([f'{n}: comp.* given, but the section has no compensator'])
-        mid = f'{n}.mid'
+        two = act == 'motor' or float(parts['cylinder'].get('A_b', 0.0) or 0.0) > 0.0
+        load_b = self.ports.get('load_b', [None])[0] or (f'{n}.b' if two else None)
+        if load_b and not two:
+            raise ParamError([f'{n}: port load_b is connected, but the cylinder is '
+                              'single-acting (give cylinder.A_b)'])
         sense = self.ports.get('sense', [None])[0]
-        gate = {'ls': sense, 'drain': tank} if sense else {}
         out: list = []
-        if o.compensator == 'none':
-            out.append((f'{n}.valve', 'directional_valve', parts['valve'],
-                        {'in': supply, 'out': load, **gate}))
-        elif o.compensator == 'pre':
-            out += [(f'{n}.comp', 'pre_compensator', parts['comp'],
-                     {'in': supply, 'out': mid, 'sense': load}),
-                    (f'{n}.valve', 'directional_valve', parts['valve'],
-                     {'in': mid, 'out': load, **gate})]
-        else:
+
+        def vol(name, node, V):
+            out.append((f'{n}.{name}', 'volume', {'V': V}, {'node': node}))
+        # The actuator's lines, through brake valves when it has them.
+        a_side, b_side = load, load_b
+        if parts['brake']:
+            va, vb = f'{n}.va', (f'{n}.vb' if load_b else None)
+            out.append((f'{n}.brake_a', 'counterbalance', parts['brake'],
+                        {'load': load, 'valve': va, 'pilot': vb or tank}))
+            vol('line_a', va, o.V_line)
+            if load_b:
+                out.append((f'{n}.brake_b', 'counterbalance', parts['brake'],
+                            {'load': load_b, 'valve': vb, 'pilot': va}))
+                vol('line_b', vb, o.V_line)
+            a_side, b_side = va, vb
+        valve_ports = {'T': tank, **({'ls': sense} if sense else {})}
+        if o.compensator == 'post':
             if not self.ports.get('ls'):
                 raise ParamError([f'{n}: a post-compensated section needs its port ls (the '
                                   'load-sensing line)'])
-            # The metering edge discharges into mid; the signal is the load's, behind the
-            # compensator, switched by the same spool.
-            out += [(f'{n}.valve', 'directional_valve', parts['valve'],
-                     {'in': supply, 'out': mid, **gate, **({'ls_from': load} if sense else {})}),
-                    (f'{n}.comp', 'post_compensator', parts['comp'],
-                     {'in': mid, 'out': load, 'ls': self.ports['ls'][0]})]
-        if o.compensator != 'none':
-            out.append((f'{n}.mid_volume', 'volume', {'V': o.V_mid}, {'node': mid}))
+            ls = self.ports['ls'][0]
+            valve_ports['P'] = supply
+            for side, line, mid in (('a', a_side, f'{n}.mid'), ('b', b_side, f'{n}.mid_b')):
+                if line is None:
+                    continue
+                valve_ports['A' if side == 'a' else 'B'] = mid
+                valve_ports['sense_A' if side == 'a' else 'sense_B'] = line
+                suffix = '' if side == 'a' else '_b'
+                out += [(f'{n}.comp{suffix}', 'post_compensator', parts['comp'],
+                         {'in': mid, 'out': line, 'ls': ls}),
+                        (f'{n}.return{suffix}', 'check_valve', {'A': 1.0e-4, 'p_crack': 1.0e4,
+                                                                'p_full': 1.0e5},
+                         {'in': line, 'out': mid})]
+                vol(f'mid_volume{suffix}', mid, o.V_mid)
+        else:
+            valve_ports.update(A=a_side, **({'B': b_side} if b_side else {}))
+            if o.compensator == 'pre':
+                valve_ports['P'] = f'{n}.mid'
+                out.append((f'{n}.comp', 'pre_compensator', {'check': True, **parts['comp']},
+                            {'in': supply, 'out': f'{n}.mid', 'sense': sense or load}))
+                vol('mid_volume', f'{n}.mid', o.V_mid)
+            else:
+                valve_ports['P'] = supply
+        out.append((f'{n}.valve', 'valve_4_3', parts['valve'], valve_ports))
         if sense:
-            out.append((f'{n}.sense_volume', 'volume', {'V': o.V_sense}, {'node': sense}))
-        out.append((f'{n}.{act}', act, parts[act], {'a': load, 'b': tank}))
+            vol('sense_volume', sense, o.V_sense)
+        if parts['relief']:
+            if act == 'motor':  # cross-port: each line to the other
+                out += [(f'{n}.relief_ab', 'relief', parts['relief'], {'in': load, 'out': load_b}),
+                        (f'{n}.relief_ba', 'relief', parts['relief'], {'in': load_b, 'out': load})]
+            else:
+                out += [(f'{n}.relief_{s}', 'relief', parts['relief'], {'in': node, 'out': tank})
+                        for s, node in (('a', load), ('b', load_b)) if node]
+        if o.makeup or parts['check']:
+            check = {'A': 1.0e-4, 'p_crack': 3.0e4, 'p_full': 2.0e5, **parts['check']}
+            out += [(f'{n}.makeup_{s}', 'check_valve', check, {'in': tank, 'out': node})
+                    for s, node in (('a', load), ('b', load_b)) if node]
+        out.append((f'{n}.{act}', act, parts[act],
+                    {'a': load, **({'b': load_b} if load_b else {})}))
         inputs = {'command': f'{n}.valve.command'}
-        signals = {'flow': f'{n}.valve.flow', 'pressure': f'{n}.{act}.pressure',
-                   'opening': f'{n}.valve.opening'}
+        signals = {'flow': f'{n}.comp.flow' if o.compensator == 'post' else f'{n}.valve.flow_A',
+                   'pressure': f'{n}.{act}.pressure', 'pressure_b': f'{n}.{act}.pressure_b',
+                   'opening': f'{n}.valve.spool'}
         if act == 'cylinder':
             inputs['force'] = f'{n}.cylinder.force'
             signals.update(position=f'{n}.cylinder.position', velocity=f'{n}.cylinder.velocity')
         else:
             inputs['torque'] = f'{n}.motor.torque'
-            signals['speed'] = f'{n}.motor.speed'
+            signals.update(speed=f'{n}.motor.speed', angle=f'{n}.motor.angle')
         return Expansion(out, inputs, signals)

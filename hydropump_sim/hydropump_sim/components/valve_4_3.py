@@ -36,10 +36,11 @@ to T near the centre, switching linearly over the first ``ls_open`` of the strok
     Q_ls->T = k_ls g_T sroot(P_ls - P_T)
 
 so an idle section senses tank and a working one its work port (the ``sensed`` signal,
-``g_A P_A + g_B P_B + g_T P_T``). With B plugged, its share drains to T. The signals
-``flow_A``, ``flow_B`` and ``flow_T`` are the valve's net flows at those ports, the LS
-passage's included (zero at rest past ``ls_open``); ``loss`` is the sum of ``dp q`` over
-the four edges and the passage.
+``g_A P_A + g_B P_B + g_T P_T``). With B plugged, its share drains to T. ``sense_A`` and
+``sense_B`` take the passage's sides elsewhere than the work ports (the load behind a post
+compensator, as flow-sharing sections sense it). The signals ``flow_A`` and ``flow_B`` are
+the valve's net flows into the work ports through its edges, ``flow_T`` into T with the
+passage's drain; ``loss`` is the sum of ``dp q`` over the four edges and the passage.
 
 Defaults and their sources:
 
@@ -55,7 +56,8 @@ Defaults and their sources:
   of Hopsan's load-sensing 4/3 valve (its Compgen version: a 0.3 mm overlap of a 10 mm
   stroke, the LS land fully open at 1 mm) with a wider band typical of a mobile valve's
   neutral;
-- ``A_ls`` 1e-6 m^2 (a 1.1 mm drilling) and ``dp_cr`` 0.5 bar, as directional_valve;
+- ``A_ls`` 3e-6 m^2 (a 2 mm drilling: the load-sensing bleed's drop across it stays
+  below 0.1 bar) and ``dp_cr`` 0.5 bar, as directional_valve;
   ``C_d`` 0.65 (Hopsan's 0.67, a sharp edge's 0.6-0.7); ``G_leak`` laws.G_LEAK_SPOOL
   (0.1 L/min at 100 bar per edge, a proportional valve's catalogue leakage order).
 """
@@ -80,9 +82,12 @@ def opening(s, overlap):
 @jit
 def kernel(t, x, dx, u, p, y, P, Q, V):
     ip, it, ia, ib, il = int(p[0]), int(p[1]), int(p[2]), int(p[3]), int(p[4])
-    k_pa, k_bt, k_pb, k_at = p[5], p[6], p[7], p[8]
-    o_p, o_t, g, dp_cr, omega, zeta, k_ls, ls_open = (p[9], p[10], p[11], p[12], p[13],
-                                                      p[14], p[15], p[16])
+    isa, isb = int(p[5]), int(p[6])
+    k_pa, k_bt, k_pb, k_at = p[7], p[8], p[9], p[10]
+    o_p, o_t, g, dp_cr, omega, zeta, k_ls, ls_open = (p[11], p[12], p[13], p[14], p[15],
+                                                      p[16], p[17], p[18])
+    if isa < 0:
+        isa = ia
     cmd = min(max(u[0], -1.0), 1.0)
     if omega > 0.0:
         dx[0] = x[1]
@@ -105,20 +110,24 @@ def kernel(t, x, dx, u, p, y, P, Q, V):
         q_bt = edge(k_bt, opening(s, o_t), pb - pt, dp_cr, g)
         loss += q_pb * (pp - pb) + q_bt * (pb - pt)
         g_b = clip01(-s / ls_open)
+    if isb < 0:
+        isb = ib if ib >= 0 else it
     g_t = 1.0 - g_a - g_b
     q_als = 0.0
     q_bls = 0.0
     q_lst = 0.0
     if il >= 0:
-        pl = P[il]
-        q_als = edge(k_ls, g_a, pa - pl, dp_cr, 0.0)
-        q_bls = edge(k_ls, g_b, pb - pl, dp_cr, 0.0)
+        pl, psa, psb = P[il], P[isa], P[isb]
+        q_als = edge(k_ls, g_a, psa - pl, dp_cr, 0.0)
+        q_bls = edge(k_ls, g_b, psb - pl, dp_cr, 0.0)
         q_lst = edge(k_ls, g_t, pl - pt, dp_cr, 0.0)
         Q[il] += q_als + q_bls - q_lst
-        loss += q_als * (pa - pl) + q_bls * (pb - pl) + q_lst * (pl - pt)
+        Q[isa] -= q_als
+        Q[isb] -= q_bls
+        loss += q_als * (psa - pl) + q_bls * (psb - pl) + q_lst * (pl - pt)
     flow_p = q_pa + q_pb
-    flow_a = q_pa - q_at - q_als
-    flow_b = q_pb - q_bt - q_bls
+    flow_a = q_pa - q_at
+    flow_b = q_pb - q_bt
     flow_t = q_at + q_bt + q_lst
     Q[ip] -= flow_p
     Q[ia] += flow_a
@@ -131,7 +140,7 @@ def kernel(t, x, dx, u, p, y, P, Q, V):
     y[3] = flow_p
     y[4] = flow_t
     y[5] = loss
-    y[6] = g_a * pa + g_b * pb + g_t * pt
+    y[6] = g_a * psa + g_b * psb + g_t * pt
 
 
 @dataclass(frozen=True)
@@ -157,8 +166,8 @@ class Valve43Params:
     G_leak: float = spec('m^3/(s Pa)', 'leakage of each edge (laws.G_LEAK_SPOOL: 0.1 L/min at '
                          '100 bar)', 0.0, 1.0e-9, default=G_LEAK_SPOOL)
     dp_cr: float = spec('Pa', 'laminar/turbulent transition', 0.0, 1.0e6, default=5.0e4)
-    A_ls: float = spec('m^2', 'area of the load-sensing passage (ls port)', 1.0e-10, 1.0e-4,
-                       default=1.0e-6)
+    A_ls: float = spec('m^2', 'area of the load-sensing passage (ls port): a 2 mm drilling',
+                       1.0e-10, 1.0e-4, default=3.0e-6)
     ls_open: float = spec('-', 'spool travel (fraction of the stroke) over which the '
                           'load-sensing passage switches from T to the work port', 1.0e-3, 1.0,
                           default=0.05)
@@ -172,12 +181,15 @@ class Valve43(Component):
     PORTS = (PortSpec('P', 'pressure port'), PortSpec('T', 'tank port'),
              PortSpec('A', 'work port A'),
              PortSpec('B', 'work port B (unconnected: plugged, a 3-way use)', optional=True),
-             PortSpec('ls', 'load-sensing signal of the section', optional=True))
+             PortSpec('ls', 'load-sensing signal of the section', optional=True),
+             PortSpec('sense_A', 'where the load-sensing passage takes the A side (default: '
+                      'A; the load behind a post compensator)', optional=True),
+             PortSpec('sense_B', 'where it takes the B side (default: B)', optional=True))
     INPUTS = (InputSpec('command', '-', 'spool command -1..1 (+ P->A, B->T)', -1.0, 1.0,
                         'command'),)
     SIGNALS = (SignalSpec('spool', '-', 'spool position, fraction of the stroke -1..1'),
-               SignalSpec('flow_A', 'm^3/s', 'net flow from the valve into A (LS passage too)'),
-               SignalSpec('flow_B', 'm^3/s', 'net flow from the valve into B (LS passage too)'),
+               SignalSpec('flow_A', 'm^3/s', 'net flow from the valve into A through its edges'),
+               SignalSpec('flow_B', 'm^3/s', 'net flow from the valve into B through its edges'),
                SignalSpec('flow_P', 'm^3/s', 'flow from P into the valve'),
                SignalSpec('flow_T', 'm^3/s', 'flow from the valve into T (LS drain too)'),
                SignalSpec('loss', 'W', 'power dissipated in the edges and the LS passage'),
