@@ -85,12 +85,13 @@ def _opening(command, overlap=0.1):
     return min(max((command - overlap) / (1.0 - overlap), 0.0), 1.0)
 
 
-def _held(dp_set, p_band=1.0e5, p_h=3.0e4):
-    """The range of the drop a compensating spool holds: its setting, within half its
-    regulation range and half its hysteresis (pre_compensator.py), as a flow ratio
-    ``sqrt(dp/dp_set)``."""
+def _held(dp_set, q=0.0, p_band=1.0e5, p_h=3.0e4, r_ff=1.0e8):
+    """The range of the drop a compensating spool holds at flow ``q``: its setting less the
+    flow-force droop ``r_ff q``, within half its regulation range and half its hysteresis
+    (pre_compensator.py), as a flow ratio ``sqrt(dp/dp_set)``."""
     dev = 0.5 * p_band + 0.5 * p_h
-    return math.sqrt((dp_set - dev) / dp_set), math.sqrt((dp_set + dev) / dp_set)
+    return (math.sqrt((dp_set - r_ff * q - dev) / dp_set),
+            math.sqrt((dp_set + dev) / dp_set))
 
 
 def test_pre_compensated_flow_is_the_closed_form_whatever_the_load(fig1):
@@ -100,7 +101,7 @@ def test_pre_compensated_flow_is_the_closed_form_whatever_the_load(fig1):
     balance holds with its meter-out back pressure."""
     rho = fig1.fluid.rho
     want = _k(2.2e-5, rho) * _opening(0.5) * math.sqrt(1.0e6)
-    lo, hi = _held(1.0e6)
+    lo, hi = _held(1.0e6, want)
     flows = []
     for force in (2.0e4, 6.0e4, 9.0e4):
         eq = equilibrium(fig1, {'pump.current': 0.7, 'boom.command': 0.5,
@@ -119,7 +120,7 @@ def test_the_priority_load_keeps_its_flow_while_the_others_vary(fig1):
     edge's at the priority spring, C_d A a(xi) sqrt(2 dp_pr/rho) within the spool's
     regulation range, as the loads on demand start and stop."""
     want = _k(8.9e-6, fig1.fluid.rho) * _opening(0.5) * math.sqrt(7.0e5)
-    lo, hi = _held(7.0e5)
+    lo, hi = _held(7.0e5, want)
     for boom, motor in ((0.0, 0.0), (0.8, 0.0), (0.8, 0.6), (0.2, 1.0)):
         eq = equilibrium(fig1, {'pump.current': 0.9, 'boom.command': boom,
                                 'motor.command': motor})
@@ -159,7 +160,7 @@ def test_pre_compensation_starves_the_highest_load_first(fig1):
     eq = _saturated(fig1)
     boom_full = _k(2.2e-5, rho) * math.sqrt(1.0e6)
     motor_full = _k(1.8e-5, rho) * math.sqrt(1.0e6)
-    lo, hi = _held(1.0e6)
+    lo, hi = _held(1.0e6, boom_full)
     assert eq['boom.pressure'] < eq['motor.pressure']
     assert lo * boom_full <= eq['boom.flow'] <= hi * boom_full
     assert eq['motor.flow'] < 0.9 * motor_full
@@ -167,6 +168,7 @@ def test_pre_compensation_starves_the_highest_load_first(fig1):
     heavy = equilibrium(fig1, {'pump.current': 0.9, 'boom.command': 1.0,
                                'motor.command': 1.0, 'boom.force': 7.0e4,
                                'motor.torque': 20.0})
+    lo, hi = _held(1.0e6, motor_full)
     assert lo * motor_full <= heavy['motor.flow'] <= hi * motor_full
     assert heavy['boom.flow'] < 0.9 * boom_full
 

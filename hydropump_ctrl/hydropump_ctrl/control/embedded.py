@@ -27,6 +27,19 @@ import math
 
 from .schema import Model
 
+#: The smallest share of their demand starving compensated loads are taken to get: a margin
+#: near zero must not blow a demand estimate up.
+FED_MIN = 0.2
+
+
+def fed_share(dp: float, dp_c: float) -> float:
+    """The share of their demand compensated loads take at margin ``dp`` [Pa]: all of it
+    at or above the compensators' setting ``dp_c``, an orifice's ``sqrt(dp / dp_c)`` below
+    (at least :data:`FED_MIN`); 1 without compensators (``dp_c = 0``)."""
+    if dp_c <= 0.0 or dp >= dp_c:
+        return 1.0
+    return max(math.sqrt(max(dp, 0.0) / dp_c), FED_MIN)
+
 
 @dataclass(frozen=True)
 class PumpModel:

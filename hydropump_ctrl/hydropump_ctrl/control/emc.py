@@ -36,7 +36,7 @@ from hydropump_sim.components.relief import static_flow
 
 from .base import Controller, finite_value
 from .design import compensated_estimator_gains, emc_gains, line_estimator_gains
-from .embedded import LineModel, PumpModel, trajectory_step
+from .embedded import FED_MIN, fed_share, LineModel, PumpModel, trajectory_step
 from .schema import ControllerConfig
 
 # Smallest margin the line model works with: 0.1 bar. Below it the load law is laminar
@@ -173,8 +173,11 @@ class EMCController(Controller):
                                                    g.poles['line_slow'])
             e = p_l - p_u - self._dp
             # q_load is the loads' demand; a starving load takes the fraction _fed of it.
+            # The demand may exceed the pump (a saturated pump: what the loads take is then
+            # all it gives, at a margin where they starve), up to what the smallest fed
+            # share makes of the pump's full flow.
             self._q_load = min(max(self._q_load + l_q * e / self._fed(self._dp), 0.0),
-                               self._pump.Q_max)
+                               self._pump.Q_max / FED_MIN)
             self._line_corr = l_p * e / self._dp
         elif p_l is not None and p_u is not None:
             gamma = self._line.gamma_u
@@ -210,6 +213,11 @@ class EMCController(Controller):
         else:
             r = self._refs['flow']
             k_r = g.k_r
+        # Compensated loads asking more than the pump gives: it saturates. The command then
+        # goes to its limit (below), the spool pushed to its stop, so that the pump reaches
+        # full displacement even where its pressure feedback (eq. 6) would hold it short at
+        # the current of eq. 11's full flow.
+        beyond = self.mode == 'margin' and self._compensated and r >= pump.Q_max
         r = min(max(r, 0.0), pump.Q_max)
         self._r = r
         # Against compensated loads a falling trajectory takes the falling-flow dynamics
@@ -223,6 +231,8 @@ class EMCController(Controller):
         self._Qr_next = Qr_next
         self._used_law = True
         v = v_r + g.k_x * (self._Qr - self._Qhat) - self._dm
+        if beyond:
+            return max(pump.current(v), self._cfg.limits.current_max)
         return pump.current(v)
 
     def _applied(self, u: float, desired: float, dt: float) -> None:
@@ -250,13 +260,7 @@ class EMCController(Controller):
             self._dpr = self._dp
 
     def _fed(self, dp: float) -> float:
-        """The share of their demand compensated loads take at margin ``dp``: all of it at
-        or above the compensators' setting, an orifice's ``sqrt(dp / dp_c)`` below (at
-        least a fifth, so that a margin near zero does not blow the demand estimate up)."""
-        dp_c = self._cfg.model.dp_compensator
-        if dp_c <= 0.0 or dp >= dp_c:
-            return 1.0
-        return max(math.sqrt(max(dp, 0.0) / dp_c), 0.2)
+        return fed_share(dp, self._cfg.model.dp_compensator)
 
     def _relief(self, p_l: float | None) -> float:
         """The relief valve's flow at line pressure ``p_l`` (its static law), in the

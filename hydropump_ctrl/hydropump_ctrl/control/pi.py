@@ -40,6 +40,7 @@ from collections.abc import Mapping
 import math
 
 from .base import Controller, finite_value
+from .embedded import fed_share
 from .schema import ControllerConfig
 
 HOLD_FILTER = 0.05  # s, averaging of the measurement a mode switch with hold takes over
@@ -239,9 +240,21 @@ class PIController(Controller):
 
     def _applied(self, u: float, desired: float, dt: float) -> None:
         if self._active:
-            self._pid[self.mode].integrate(self._error, dt, self._u_unsat, u)
+            self._pid[self.mode].integrate(self._error * self._starving(), dt, self._u_unsat,
+                                           u)
         if self._fault:
             self._realign = True
+
+    def _starving(self) -> float:
+        """The integral's gain schedule against compensated loads: below the compensators'
+        setting they take only the share :func:`~.embedded.fed_share` of each extra flow
+        (orifices, no more integrators), and the loop gain falls by it; the integral gains
+        it back, so the pump climbs out of starvation, or to its full flow when the loads
+        ask more than it gives, at the rate it regulates a fed margin."""
+        if self.mode != 'margin' or self._cfg.model.load_law != 'compensated':
+            return 1.0
+        y = self._measured('margin')
+        return 1.0 if y is None else 1.0 / fed_share(y, self._cfg.model.dp_compensator)
 
     def _on_mode(self, old: str, new: str) -> None:
         self._align(new)
