@@ -580,6 +580,11 @@ def _make(name: str, entry: Any, kinds: dict, plant: dict | None, sets: dict[str
     # any other is a parameter.
     input_names = {s.name for s in cls.INPUTS}
     composite = cls.expand is not Component.expand
+    # An input the file gives that no parameter of the component holds (the pump's current)
+    # holds that input too.
+    own = cls.param_specs()
+    for key in [k for k in values if k in input_names and k not in own and not composite]:
+        input_sets[f'{name}.{key}'] = values.pop(key)
     for key, value in sets.items():
         if key not in input_names:
             values[key] = value

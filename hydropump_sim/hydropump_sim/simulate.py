@@ -387,10 +387,16 @@ class Simulator:
     model : str
         The paper plant's form (:func:`hydropump_sim.model.pack`).
     config : IntegratorConfig
+    inputs : mapping, optional
+        Inputs by name over the model's own, held from the start (its steady state is at
+        them).
+    x0 : array_like, optional
+        Where the search for that steady state starts (a nearby one).
     """
 
     def __init__(self, plant: Params | Model, dt: float = 1.0e-3, model: str = 'fine',
-                 config: IntegratorConfig = IntegratorConfig()):
+                 config: IntegratorConfig = IntegratorConfig(),
+                 inputs: Mapping[str, float] | None = None, x0=None):
         if not (math.isfinite(dt) and dt > 0):
             raise InputError(f'dt = {dt!r}: expected a positive number of seconds')
         self.model = PumpModel(plant, model) if isinstance(plant, Params) else plant
@@ -403,7 +409,9 @@ class Simulator:
         self.steps = 0
         #: Why the last reset started from the nearest state found, or ``None``.
         self.reset_note: str | None = None
-        self.reset()
+        if x0 is not None:
+            self.x = np.array(x0, dtype=float)
+        self.reset(inputs)
 
     @property
     def params(self) -> Params | None:

@@ -64,11 +64,23 @@ def hydromechanical(circuit: Circuit, margin: float) -> Circuit:
                                 f'{pump.comp.name}.ls.margin': margin})
 
 
+def at_rest(circuit: Circuit, u: np.ndarray | None = None) -> np.ndarray:
+    """The inputs ``u`` (default the circuit's) with an electro-hydraulic pump at zero
+    displacement: where a margin controller takes a circuit over from, rather than a pump
+    at its nominal current pumping into closed sections until its cut-off or relief."""
+    u = (circuit.u0 if u is None else u).copy()
+    if circuit.electric_pump():
+        u[circuit.input_index(f'{circuit.pump_name()}.current')] = \
+            circuit.plant_params().current_range[0]
+    return u
+
+
 def controller_config(circuit: Circuit, eq=None, config: ControllerConfig | None = None
                       ) -> ControllerConfig:
     """The controller for a circuit: ``config`` (default ``controller.yaml`` beside the
-    circuit's plant file, else designed from the plant) with the line capacitance the
-    circuit presents at the pump's outlet."""
+    circuit's file or its folder, if it was made for the circuit's pump, else designed
+    from the plant) with the line capacitance the circuit presents at the pump's
+    outlet."""
     pump = circuit.pump()
     plant = pump.comp.params.plant
     if config is None:
@@ -80,21 +92,33 @@ def controller_config(circuit: Circuit, eq=None, config: ControllerConfig | None
                 break
         if found is not None:
             config = load_config(found, current_limits=plant.I_limits)
-        else:
+        # A configuration made for another pump (its full flow not this one's) is not this
+        # pump's: design one from its plant.
+        if config is None or abs(config.model.Q_max / plant.Q_max - 1.0) > 0.01:
             from ..control.design import design_config
             config = design_config(plant)
-    eq = equilibrium(circuit) if eq is None else eq
+    eq = equilibrium(circuit, at_rest(circuit)) if eq is None else eq
     node = pump.comp.ports['out'][0]
     values = {'model.C_l': line_capacitance(circuit, eq, node)}
-    if 'ls_pressure' in circuit.measured():
+    compensators = circuit.role('compensator')
+    margin = config.reference.margin
+    # Post compensators (flow sharing) leave the metering edges the margin less their
+    # spring: their loads take more as the margin grows, as orifices do (eq. 9, the load's
+    # conductance estimated); pre compensators hold a drop of their own, and the line is
+    # an integrator of what the pump gives beyond their flow.
+    sharing = compensators and all(
+        pt.comp.metering_drop(2.0 * margin) > pt.comp.metering_drop(margin)
+        for pt in compensators)
+    if 'ls_pressure' in circuit.measured() and sharing:
+        values['controller.mode'] = 'margin'  # what a load-sensing circuit's pump runs
+        values['model.load_law'] = 'orifice'
+    elif 'ls_pressure' in circuit.measured():
         # Compensated sections: the line an integrator for EMC's model and PI's tuning,
         # with the relief valve at the pump's outlet (the lowest cracking) in EMC's model.
         values['model.load_law'] = 'compensated'
         values['controller.mode'] = 'margin'  # what a load-sensing circuit's pump runs
-        # The compensators' setting (the highest): below it the loads starve. Post
-        # compensators leave the metering edges the margin less their spring.
-        settings = [pt.comp.metering_drop(config.reference.margin)
-                    for pt in circuit.role('compensator')]
+        # The compensators' setting (the highest): below it the loads starve.
+        settings = [pt.comp.metering_drop(margin) for pt in compensators]
         if settings:
             values['model.dp_compensator'] = max(settings)
         reliefs = [pt.comp.relief_law() for pt in circuit.role('pressure_limit')
@@ -179,21 +203,25 @@ def run_circuit(circuit: Circuit, duration: float,
                                                     else MARGIN)
         circuit = hydromechanical(circuit, margin)
     settle = (1.5 if control == 'margin' else 0.0) if settle is None else settle
-    ctrl, start = None, None
+    ctrl, start, x0 = None, None, None
     if control == 'margin':
         if not circuit.electric_pump():
             raise CircuitError([f'{circuit.name}: margin control needs the electro-hydraulic '
                                 'pump (type pump)'])
         _margin_of(circuit)
         # A steady state at the current that feeds the loads: the controller starts from a
-        # plant at rest, as a node's controller does after the simulator's start.
+        # plant at rest, as a node's controller does after the simulator's start. Found
+        # from the circuit at rest (the pump at zero displacement), through the flow the
+        # loads take at the pump's nominal current (a short march at most).
         u0, _ = circuit.input_table(np.zeros(1), inputs, dt)
-        eq = equilibrium(circuit, u0[0])
-        start = {f'{circuit.pump_name()}.current': start_current(circuit, eq)}
+        rest = equilibrium(circuit, at_rest(circuit, u0[0]))
+        nominal = equilibrium(circuit, u0[0], x0=rest.x, horizon=2.0, strict=False)
+        start = {f'{circuit.pump_name()}.current': start_current(circuit, nominal)}
+        x0 = nominal.x
         ctrl = make_controller(cfg)
     run = run_loop(circuit, duration, controller=ctrl, inputs=inputs,
                    profile=profile or SensorProfile.from_config(SensorConfig()), settle=settle,
-                   dt=dt, start=start)
+                   dt=dt, start=start, x0=x0)
     return CircuitRun(run.model, run.t, run.y, run.u, run.command, run.t_ctrl, run.state,
                       run.meas, run.mode, run.violations, control,
                       ctrl.algorithm if ctrl else None, margin,

@@ -79,7 +79,7 @@ def _held(t_event: float, before: float, after: float):
 def run_loop(model: Model, duration: float, *, controller=None,
              inputs: Mapping[str, Any] | None = None, events: Sequence[Event] = (),
              profile: SensorProfile | None = None, settle: float = 0.0, dt: float = 1.0e-3,
-             start: Mapping[str, float] | None = None) -> LoopRun:
+             start: Mapping[str, float] | None = None, x0=None) -> LoopRun:
     """Run ``model`` for ``duration`` [s] under ``controller`` (``None``: the inputs as
     scheduled).
 
@@ -101,6 +101,8 @@ def run_loop(model: Model, duration: float, *, controller=None,
     start : mapping, optional
         Inputs by name of the steady state the run starts from (default those of
         ``t = 0``), e.g. the current a controller starts from.
+    x0 : array_like, optional
+        Where the search for that steady state starts (a nearby one).
     """
     plant = model.plant_inputs()
     sched = dict(inputs or {})
@@ -131,11 +133,8 @@ def run_loop(model: Model, duration: float, *, controller=None,
     t = np.arange(n + 1) * dt
     U, _ = model.input_table(np.maximum(np.arange(-n0, n + 1) * dt, 0.0), sched, dt)
     i_cur = model.input_index(plant['current']) if controller is not None else None
-    sim = Simulator(model, dt)
-    sim.u[:] = U[0]
-    for name, value in (start or {}).items():
-        sim.set_input(name, value)
-    sim.reset(keep_inputs=True)
+    held = {name: float(U[0, k]) for k, name in enumerate(model.inputs)}
+    sim = Simulator(model, dt, inputs={**held, **(start or {})}, x0=x0)
     readout = Readout(model) if controller is not None else None
     bank = SensorBank(profile or SensorProfile.from_config(SensorConfig()), dt,
                       like={'ls_pressure': 'line_pressure'})

@@ -32,10 +32,9 @@ def kernel(t, x, dx, u, p, y, P, Q, V):
     out, ls = int(p[0]), int(p[1])
     margin = p[2]
     q = p[3:3 + pump.N_P]
-    error = margin - (P[out] - P[ls]) - pump.cutoff(P[out], p[3 + pump.N_P],
-                                                    p[4 + pump.N_P])
-    n = x.shape[0]
-    Q[out] += pump.pump_equations(t, x, dx, n - 1, P[out], error, u[0], q, y)
+    over, n = pump.cutoff(x, dx, P[out], p[3 + pump.N_P:])
+    error = margin - (P[out] - P[ls]) - over
+    Q[out] += pump.pump_equations(t, x[:n], dx[:n], n - 1, P[out], error, u[0], q, y)
     y[pump.Y_IS] = P[out] - P[ls]
 
 
@@ -84,7 +83,8 @@ class LsPump(Component):
 
     def states(self):
         plant = self.params.plant.replace({'input.tau_s': 0.0})
-        return pump.Pump(self.name, pump.PumpSetup(plant, 'fine'), {}).states()
+        return pump.Pump(self.name, pump.PumpSetup(plant, 'fine', self.params.cutoff),
+                         {}).states()
 
     def pack(self):
         sp = self.params.spool
@@ -95,7 +95,7 @@ class LsPump(Component):
         q[pump.P_DITHA] = 0.0
         q[pump.P_TAUS] = 0.0
         cut = self.params.cutoff
-        return [sp.margin] + list(q) + [cut.p_set, 2.0 * sp.margin / cut.band]
+        return [sp.margin] + list(q) + [cut.p_set, 2.0 * sp.margin / cut.band, cut.lead]
 
     def pressure_cap(self, u):
         cut = self.params.cutoff
@@ -111,4 +111,5 @@ class LsPump(Component):
         P_a = plant.actuator.P_a_bar - (P_l - plant.line.P_l_bar) * plant.plate.S_d \
             / plant.actuator.S_a
         P_a = min(max(P_a, plant.fluid.P_T), max(P_l, plant.fluid.P_T))
-        return np.array([0.0, 0.0, 0.0, 0.0, P_a])
+        return np.array([0.0, 0.0, 0.0, 0.0, P_a]
+                        + [P_l] * len(pump.cutoff_state(self.params.cutoff)))

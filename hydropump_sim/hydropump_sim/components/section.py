@@ -6,9 +6,12 @@ priority valve compensates it), and the actuator it drives: a cylinder (double-a
 its ``A_b`` is given, else single-acting with port B plugged) or a motor. Optional, as the
 hardware has them:
 
-- ``brake``: a counterbalance (brake, over-centre) valve in each work line, piloted by the
-  other, so that a hanging load or a swinging mass is held and driven down or braked under
-  control, not by the spool's leakage;
+- ``brake``: a counterbalance (brake, over-centre) valve in a work line (``brake_lines``:
+  ``a``, ``b`` or ``both``), piloted by the other line, so that a hanging load or a
+  swinging mass is held and driven down or braked under control, not by the spool's
+  leakage;
+- ``hose`` (and ``hose_b``, the B line's when it differs): the lines from the valve to the
+  actuator (or to its brake valves), with their fluid's inertia and friction;
 - ``relief``: port reliefs (each work line to tank, a cylinder's shock reliefs) or, for a
   motor, cross-port reliefs (each line to the other, a swing's);
 - ``makeup``: anti-cavitation checks from tank into each work line.
@@ -47,8 +50,8 @@ from typing import Any
 from ..schema import build, ParamError, spec, unknown_key_line
 from .base import Component, Expansion, InputSpec, PortSpec, SignalSpec
 
-GROUPS = ('valve', 'comp', 'cylinder', 'motor', 'brake', 'relief', 'check')
-OWN = ('actuator', 'compensator', 'V_mid', 'V_sense', 'V_line', 'makeup')
+GROUPS = ('valve', 'comp', 'cylinder', 'motor', 'brake', 'relief', 'check', 'hose', 'hose_b')
+OWN = ('actuator', 'compensator', 'V_mid', 'V_sense', 'V_line', 'makeup', 'brake_lines')
 
 
 @dataclass(frozen=True)
@@ -65,6 +68,8 @@ class SectionOptions:
                          1.0e-2, default=1.0e-4)
     makeup: bool = spec('-', 'anti-cavitation checks from tank into each work line',
                         default=False)
+    brake_lines: str = spec('-', 'the work lines with a brake (counterbalance) valve, if '
+                            'brake.* is given', choices=('a', 'b', 'both'), default='both')
 
 
 @dataclass(frozen=True)
@@ -135,18 +140,30 @@ class Section(Component):
 
         def vol(name, node, V):
             out.append((f'{n}.{name}', 'volume', {'V': V}, {'node': node}))
-        # The actuator's lines, through brake valves when it has them.
+        # The actuator's lines, through brake valves when it has them, then hoses.
         a_side, b_side = load, load_b
         if parts['brake']:
-            va, vb = f'{n}.va', (f'{n}.vb' if load_b else None)
-            out.append((f'{n}.brake_a', 'counterbalance', parts['brake'],
-                        {'load': load, 'valve': va, 'pilot': vb or tank}))
-            vol('line_a', va, o.V_line)
-            if load_b:
+            lines = {'a': ('a', 'both'), 'b': ('b', 'both')}
+            va = f'{n}.va' if o.brake_lines in lines['a'] else load
+            vb = (f'{n}.vb' if o.brake_lines in lines['b'] else load_b) if load_b else None
+            if va != load:
+                out.append((f'{n}.brake_a', 'counterbalance', parts['brake'],
+                            {'load': load, 'valve': va, 'pilot': vb or tank}))
+                vol('line_a', va, o.V_line)
+            if vb is not None and vb != load_b:
                 out.append((f'{n}.brake_b', 'counterbalance', parts['brake'],
                             {'load': load_b, 'valve': vb, 'pilot': va}))
                 vol('line_b', vb, o.V_line)
             a_side, b_side = va, vb
+        if parts['hose']:
+            hose_b = parts['hose_b'] or parts['hose']
+            out.append((f'{n}.hose', 'hose', parts['hose'], {'a': f'{n}.ha', 'b': a_side}))
+            a_side = f'{n}.ha'
+            if b_side is not None:
+                out.append((f'{n}.hose_b', 'hose', hose_b, {'a': f'{n}.hb', 'b': b_side}))
+                b_side = f'{n}.hb'
+        elif parts['hose_b']:
+            raise ParamError([f"{n}: hose_b.* given without hose.* (the A line's)"])
         valve_ports = {'T': tank, **({'ls': sense} if sense else {})}
         if o.compensator == 'post':
             if not self.ports.get('ls'):
