@@ -109,6 +109,8 @@ class Circuit(Model):
         Node -> total volume [m^3] (nodes that are not fixed).
     states, state_units, state_scale, integrating
         Full state names (``pump.x_c``, ``node:line``), units, scales, integrating flags.
+    state_stops : ndarray (n, 2)
+        The end stops of integrating states (NaN: none).
     inputs, input_units, u0
         Full input names, units, and the values they hold unless told otherwise.
     signals, signal_units
@@ -143,6 +145,7 @@ class Circuit(Model):
     dither: float
     code: str
     scale_offset: int = 0
+    state_stops: np.ndarray | None = None
     meters: dict[int, int] = field(default_factory=dict)
     entries: dict[str, Any] = field(repr=False, default_factory=dict)
     module: Any = field(repr=False, default=None)
@@ -550,6 +553,10 @@ def build_circuit(doc: Any, source: str, base: Path, sets: dict[str, Any],
                           f'{circuit.input_units[k]}')
             continue
         circuit.u0[k] = float(value)
+    cap = float(circuit.pressure_caps(circuit.u0[None])[0])
+    if np.isfinite(cap):
+        for pt in circuit.parts:
+            errors += pt.comp.cap_checks(cap)
     if errors:
         raise CircuitError(errors, source)
     circuit.entries['__sets__'] = dict(sets)
@@ -680,7 +687,7 @@ def _layout(comps: list[Component], composites: dict[str, Expansion], fluid: Flu
     if errors:
         raise CircuitError(errors, source)
     # States: components', then one pressure per node with a volume.
-    states, units, scales, integ = [], [], [], []
+    states, units, scales, integ, stops = [], [], [], [], []
     parts: list[Part] = []
     inputs, in_units, in_ranges, u0 = [], [], [], []
     signals = ([f'{NODE_PREFIX}{n}' for n in nodes] + [f'{NODE_PREFIX}{n}.inflow' for n in nodes]
@@ -701,6 +708,7 @@ def _layout(comps: list[Component], composites: dict[str, Expansion], fluid: Flu
             units.append(s.unit)
             scales.append(s.scale)
             integ.append(s.integrating)
+            stops.append(s.stops or (np.nan, np.nan))
         k0 = len(inputs)
         for s in comp.INPUTS:
             inputs.append(f'{comp.name}.{s.name}')
@@ -726,16 +734,20 @@ def _layout(comps: list[Component], composites: dict[str, Expansion], fluid: Flu
             units.append('Pa')
             scales.append(1.0e6)
             integ.append(False)
+            stops.append((np.nan, np.nan))
     for m in meters:
         states.append(f'meter:{m}')
         units.append('m^3')
         scales.append(1.0)
         integ.append(True)
+        stops.append((np.nan, np.nan))
     circuit = Circuit(
         name=name, source=source, fluid=fluid, parts=parts, composites=composites,
         nodes=nodes, fixed=fixed, volume={n: v for n, v in volume.items() if n not in fixed},
         states=states, state_units=units, state_scale=np.array(scales, dtype=float),
-        integrating=np.array(integ, dtype=bool), inputs=inputs, input_units=in_units,
+        integrating=np.array(integ, dtype=bool),
+        state_stops=np.array(stops, dtype=float).reshape(-1, 2), inputs=inputs,
+        input_units=in_units,
         input_ranges=in_ranges, u0=np.array(u0, dtype=float), signals=signals,
         signal_units=sig_units, p=np.array(p, dtype=float),
         pattern=np.zeros((0, 0), bool), colors=np.zeros(0, np.int64), dither=dither,

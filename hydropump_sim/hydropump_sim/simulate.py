@@ -152,7 +152,7 @@ def simulate(plant: Params | Model, duration: float, current: Signal | Mapping =
              shaft_speed: Signal = None, x0=None, dt_out: float = 1.0e-3,
              dt_max: float = 1.0e-3, method: str = 'rodas',
              config: IntegratorConfig | None = None, rtol: float | None = None,
-             t0: float = 0.0) -> Result:
+             t0: float = 0.0, inputs: Mapping | None = None) -> Result:
     """Simulate a model from its steady state at the initial inputs (or ``x0``).
 
     Parameters
@@ -185,6 +185,8 @@ def simulate(plant: Params | Model, duration: float, current: Signal | Mapping =
     t0 : float
         Model time [s] of the first sample: the phase of a dither (a recording that starts at
         simulation time ``t0``); inputs and outputs stay on ``0 .. duration``.
+    inputs : mapping, optional
+        A model's inputs by name, as ``current`` takes them (the clearer spelling).
 
     Returns
     -------
@@ -192,12 +194,19 @@ def simulate(plant: Params | Model, duration: float, current: Signal | Mapping =
         A :class:`SimResult` for the paper's plant.
     """
     if isinstance(plant, Params):
+        if inputs is not None:
+            raise InputError("simulate: the paper's plant takes current=, load_pressure=, "
+                             'aperture= and shaft_speed=, not inputs=')
         named = _paper_inputs(current, load_pressure, aperture, shaft_speed)
         return _simulate([PumpModel(plant, model)], duration, named, [x0], dt_out, dt_max,
                          method, config or IntegratorConfig(), rtol, t0)[0]
     if not isinstance(plant, Model):
         raise InputError(f'simulate: expected a model or plant parameters, got '
                          f'{type(plant).__name__}')
+    if inputs is not None:
+        if current is not None:
+            raise InputError('simulate: give a model its inputs once, as inputs=')
+        current = inputs
     if current is not None and not isinstance(current, Mapping):
         raise InputError('simulate: a model takes its inputs by name, {name: signal}')
     return _simulate([plant], duration, current, [x0], dt_out, dt_max, method,

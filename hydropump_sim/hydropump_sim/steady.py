@@ -2,10 +2,11 @@
 
 A steady state holds every state still except the *integrating* ones (a cylinder's
 position, which moves at a constant velocity wherever the piston is): they keep their start
-values. The search polishes the model's own starts (:meth:`Model.start_states`: the
-paper pump's closed form, a circuit's pressures from its loads) by Newton's method; where
-none is a steady state the model can hold, it marches the dynamics with the inputs held
-until the free states settle, then polishes. There is no other path: the pump alone and
+values, unless one sits on an end stop and is pushed into it (then it rests too). The
+search polishes the model's own starts (:meth:`Model.start_states`: the paper pump's
+closed form, a circuit's pressures from its loads) by Newton's method; where none is a
+steady state the model can hold, it marches the dynamics with the inputs held until the
+free states settle, then polishes. There is no other path: the pump alone and
 every circuit take this one.
 
 Every valve leaks (components/laws.py), so no volume is sealed and every node's pressure is
@@ -169,6 +170,33 @@ def equilibrium(model: Model, u=None, *, x0=None, tol: float = 1.0e-9,
                 xp = polish(marched)
                 x = xp if good(xp, max(tol, 1.0e-7)) or worst(xp) < worst(marched) \
                     else marched
+    pinned = _on_stops(model, x, rates(x)) & ~free
+    if pinned.any():
+        # A piston pressed on its end stop is still: its position joins the states that
+        # rest, where the stop's force balances the push.
+        free = free | pinned
+        fast['basis'] = None
+        # Start just inside the stop, where its stiffness is felt (Newton stalls on the
+        # contact's edge, where the stop's force does not yet depend on the position).
+        x = x.copy()
+        hi = pinned & (x >= model.state_stops[:, 1])
+        x[hi] = np.maximum(x[hi], model.state_stops[hi, 1] + 1.0e-6 * scale[hi])
+        lo = pinned & ~hi
+        x[lo] = np.minimum(x[lo], model.state_stops[lo, 0] - 1.0e-6 * scale[lo])
+        # ... and stop what drives it (its velocity: one Newton step on its own rate).
+        J = model.jacobian(0.0, x, u, p)
+        r = rates(x).copy()
+        for k in np.flatnonzero(pinned):
+            row = np.abs(J[k]) * scale
+            row[k] = 0.0
+            j = int(np.argmax(row))
+            if J[k, j] != 0.0:
+                x[j] -= r[k] / J[k, j]
+        xp = polish(x)
+        if not good(xp, max(tol, 1.0e-7)):
+            xq = quasi(xp)
+            xp = xq if xq is not None and good(xq, accept) else xp
+        x = xp
     if strict and not good(x, accept):
         why = model.unphysical(x, u) or (
             f'the state does not settle (scaled residual {worst(x):.2e} above '
@@ -178,6 +206,16 @@ def equilibrium(model: Model, u=None, *, x0=None, tol: float = 1.0e-9,
                         + (f'; {stopped}' if stopped else ''))
     r = settled(x)
     return SteadyState(model, x, u, model.rhs(0.0, x, u)[1], r)
+
+
+def _on_stops(model: Model, x: np.ndarray, dx: np.ndarray) -> np.ndarray:
+    """The integrating states at one of their stops and pushed beyond it."""
+    stops = model.state_stops
+    if stops is None:
+        return np.zeros(model.n_states, dtype=bool)
+    with np.errstate(invalid='ignore'):
+        return model.integrating & (((x >= stops[:, 1]) & (dx > 0.0))
+                                    | ((x <= stops[:, 0]) & (dx < 0.0)))
 
 
 def _inputs_text(model: Model, u: np.ndarray) -> str:

@@ -53,6 +53,8 @@ class Model:
         Typical magnitude of each state (tolerances, difference steps).
     integrating : ndarray of bool
         States a steady state does not hold still (a cylinder's position).
+    state_stops : ndarray (n, 2) or None
+        Their end stops (NaN: none), where a steady state holds them still after all.
     inputs, input_units : list of str
     input_ranges : list of (float, float)
     u0 : ndarray
@@ -69,6 +71,7 @@ class Model:
     """
 
     error = ModelError
+    state_stops: np.ndarray | None = None
 
     # ---- names ----------------------------------------------------------------------------
 

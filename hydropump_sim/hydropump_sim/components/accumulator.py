@@ -119,6 +119,14 @@ class Accumulator(Component):
         """The gas precharge ``p0`` [Pa gauge]."""
         return self.params.p0
 
+    def cap_checks(self, cap: float) -> list[str]:
+        p0 = self.params.p0
+        if p0 >= cap:
+            return [f'{self.name}: precharged at {p0 / 1e5:.4g} bar, at or above the highest '
+                    f'pressure the circuit makes ({cap / 1e5:.4g} bar: its reliefs and '
+                    'cut-offs): it would never take oil']
+        return []
+
     def gas_pressure(self, v_oil: float) -> float:
         """Gas pressure [Pa gauge] at an oil volume [m^3]."""
         r = self.params

@@ -65,12 +65,14 @@ class PortSpec:
 class StateSpec:
     """A state of a component: ``scale`` is its typical magnitude (tolerances and
     difference steps); an ``integrating`` state (a position) is not part of a steady state:
-    it keeps its initial value there."""
+    it keeps its initial value there, unless it rests on one of its ``stops`` (a piston
+    pressed on its end stop is still)."""
 
     name: str
     unit: str
     scale: float
     integrating: bool = False
+    stops: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -226,6 +228,11 @@ class Component:
         force over its area), or ``None``: no circuit pressure may exceed the highest of
         them (the invariants of :mod:`hydropump_sim.invariants`)."""
         return None
+
+    def cap_checks(self, cap: float) -> list[str]:
+        """One line per way this component cannot work in a circuit whose sources make at
+        most ``cap`` [Pa] (an accumulator precharged above it never takes oil)."""
+        return []
 
     def relief_law(self) -> tuple[float, float, float] | None:
         """A relief's ``(p_crack, p_full, q_full)`` [Pa, Pa, m^3/s] (role

@@ -151,7 +151,8 @@ class Cylinder(Component):
 
     def states(self):
         r = self.params
-        return (StateSpec('position', 'm', r.stroke, integrating=True),
+        return (StateSpec('position', 'm', r.stroke, integrating=True,
+                          stops=(0.0, r.stroke)),
                 StateSpec('velocity', 'm/s', 0.1))
 
     def pack(self):
