@@ -49,6 +49,7 @@ from typing import Any
 
 import numpy as np
 
+from . import energy
 from .codecache import compile_module
 from .components import registry
 from .components.base import Component, Expansion, PortSpec
@@ -145,6 +146,8 @@ class Circuit(Model):
     dither: float
     code: str
     scale_offset: int = 0
+    power: Any = field(repr=False, default=None)
+    power_y0: int = 0
     state_stops: np.ndarray | None = None
     meters: dict[int, int] = field(default_factory=dict)
     entries: dict[str, Any] = field(repr=False, default_factory=dict)
@@ -163,7 +166,8 @@ class Circuit(Model):
     def component_signals(self) -> list[str]:
         """Every signal a user reads, ``<component>.<signal>``: the parts', and each
         composite's own names."""
-        out = [s for s in self.signals if not s.startswith(NODE_PREFIX)]
+        out = [s for s in self.signals
+               if not s.startswith((NODE_PREFIX, energy.POWER_PREFIX))]
         for name, exp in self.composites.items():
             out += [f'{name}.{alias}' for alias in exp.signals]
         return out
@@ -726,6 +730,11 @@ def _layout(comps: list[Component], composites: dict[str, Expansion], fluid: Flu
                           slice(y0, len(signals)), slice(p0, len(p)), used))
         if comp.dither_frequency() > 0.0:
             dither = max(dither, comp.dither_frequency())
+    # The energy account's sums after every component's signals (hydropump_sim.energy).
+    power = energy.power_signals(parts, nodes, fixed)
+    power_y0 = len(signals)
+    signals += power.names()
+    sig_units += ['W'] * len(power.names())
     node_states = {}
     for n in nodes:
         if n not in fixed:
@@ -751,7 +760,7 @@ def _layout(comps: list[Component], composites: dict[str, Expansion], fluid: Flu
         input_ranges=in_ranges, u0=np.array(u0, dtype=float), signals=signals,
         signal_units=sig_units, p=np.array(p, dtype=float),
         pattern=np.zeros((0, 0), bool), colors=np.zeros(0, np.int64), dither=dither,
-        code='')
+        code='', power=power, power_y0=power_y0)
     circuit.meters = {}
     for m in meters:
         try:
@@ -892,6 +901,7 @@ def _generate(circuit: Circuit, node_states: dict[str, int], index: dict[str, in
         names = [s.name for s in part.comp.SIGNALS]
         if 'flow' in names:
             lines.append(f'    y[{part.y.start + names.index("flow")}] = Q[{index[node]}]')
+    lines += energy.code_lines(circuit.power, circuit.power_y0)
     for k, i in circuit.meters.items():
         lines.append(f'    dx[{k}] = y[{i}]  # meter')
     lines += ['', '', 'evaluate_c = cfunc(EVALUATE)(evaluate)', '']

@@ -9,6 +9,8 @@
   step overshoot (:data:`FLOOR_MARGIN`).
 - **No component makes energy**: every passive component's dissipated power (its ``loss``
   signal) is at least zero (:data:`LOSS_MARGIN`).
+- **Energy balanced**: at every instant, the power supplied equals what the loads take, what
+  is stored and what is dissipated (:mod:`.energy`'s ``power:balance``), to rounding.
 - **Every value finite.**
 
 A circuit whose pump nothing limits (no relief valve, no cut-off) is refused by the compiler
@@ -24,6 +26,7 @@ import math
 
 import numpy as np
 
+from .energy import balance_bound, POWER_PREFIX
 from .errors import HydropumpError
 
 #: Allowed excess over the highest source pressure: 2 % and 1 bar (a step's overshoot of a
@@ -80,6 +83,13 @@ def check(model, t: np.ndarray, y: np.ndarray, u: np.ndarray) -> list[Violation]
             k = int(np.argmin(P))
             out.append(Violation('a pressure below the cavitation floor', f'node {node}',
                                  float(t[k]), float(P[k]), -p_atm, 'Pa'))
+    if f'{POWER_PREFIX}balance' in model.signals:
+        bal = y[:, model.signal_index(f'{POWER_PREFIX}balance')]
+        bound = balance_bound(y, model.signal_index)
+        if np.any(np.abs(bal) > bound):
+            k = int(np.argmax(np.abs(bal) / bound))
+            out.append(Violation('energy not balanced', 'the circuit', float(t[k]),
+                                 float(bal[k]), float(bound[k]), 'W'))
     for j, name in enumerate(model.signals):
         if name.endswith('.loss') and np.any(y[:, j] < -LOSS_MARGIN):
             k = int(np.argmin(y[:, j]))

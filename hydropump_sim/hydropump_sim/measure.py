@@ -91,8 +91,9 @@ class Topic:
 
 def model_topics(model) -> tuple[list[Topic], list[tuple[str, str]]]:
     """The topics a model adds (``ls_pressure``, ``loads/<name>/pressure``, ``flow``,
-    ``position``, ``velocity``, ``speed``, ``pressure_b``) and the command topics it takes
-    ``(topic, input)``: ``loads/<name>/command``. A load whose signals are all measured
+    ``position``, ``velocity``, ``speed``, ``pressure_b``; the energy account's
+    ``energy/*``, kind ``energy``: cumulative, see :mod:`.energy`) and the command topics it
+    takes ``(topic, input)``: ``loads/<name>/command``. A load whose signals are all measured
     signals of the suite (the paper's load) adds none."""
     topics: list[Topic] = []
     m = model.measured()
@@ -111,6 +112,8 @@ def model_topics(model) -> tuple[list[Topic], list[tuple[str, str]]]:
                 topics.append(Topic(f'loads/{name}/{key}', sig[key], kind, like))
         if 'command' in sig:
             commands.append((f'loads/{name}/command', sig['command']))
+    from .energy import topics as energy_topics
+    topics += [Topic(topic, signal, 'energy', None) for topic, signal in energy_topics(model)]
     return topics, commands
 
 
@@ -158,7 +161,7 @@ class Readout:
         self._current = ix(f'{pump}.current') if model.electric_pump() else None
         self._relieved = np.array([ix(n) for n in model.relieved()], dtype=np.int64)
         self.topics, self.commands = model_topics(model)
-        self._topics = [ix(t.signal) for t in self.topics]
+        self._topics = [(t.topic, ix(t.signal)) for t in self.topics if t.kind != 'energy']
         self._joints = [(j, ix(p) if p else None, ix(v) if v else None)
                         for j, p, v in model.joints()]
 
@@ -201,8 +204,9 @@ class Readout:
         return float(y[self._relieved].sum())
 
     def extra(self, y: np.ndarray) -> dict[str, float]:
-        """The values of :attr:`topics` (true, SI, gauge)."""
-        return {t.topic: float(y[k]) for t, k in zip(self.topics, self._topics)}
+        """The values of :attr:`topics` (true, SI, gauge) but the energies, which a
+        :class:`~hydropump_sim.energy.Meter` integrates."""
+        return {topic: float(y[k]) for topic, k in self._topics}
 
     def joints(self, y: np.ndarray) -> tuple[list[str], list[float], list[float]]:
         """Names, positions and velocities of the model's own joints."""

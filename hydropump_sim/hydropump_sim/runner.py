@@ -40,6 +40,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from . import energy
 from .measure import Readout
 from .params import Params
 from .schema import fmt, replace, spec
@@ -90,8 +91,9 @@ class SimulatorConfig:
     safe_current: float = spec('A', 'current applied when commands stop; 0 = the current of '
                                '0 % displacement', 0.0, 5.0, default=0.0, live=True)
     initial_current: float = spec('A', 'current of the initial equilibrium (live: from the '
-                                  'next ~/reset on); 0 = the current of 50 % displacement',
-                                  0.0, 5.0, default=0.0, live=True)
+                                  "next ~/reset on); 0 = the circuit file's pump current (the "
+                                  "paper's: 50 % displacement)", 0.0, 5.0, default=0.0,
+                                  live=True)
     diagnostics_period: float = spec('s', 'period of /diagnostics (steady clock)', 0.1, 60.0,
                                      default=1.0)
     start_paused: bool = spec('-', 'wait for ~/pause false before publishing t = 0, so that '
@@ -255,13 +257,13 @@ class Runner:
         and time moves on to the next control instant (lock-step; else the next published
         step), where the reset state is published: simulation time never repeats, so every
         reader can tell the samples before the reset from those after it."""
-        self.initial_current = self.cfg.initial_current or self.params.I_nominal
         plant = self._pending.pop('plant', None)
         if plant is not None:
             plant.steps, plant.t = self.sim.steps, self.sim.t
             plant.take_inputs(self.sim)
             self.sim = plant
             self.readout = Readout(plant.model)
+        self.initial_current = self.cfg.initial_current or self._file_current()
         initial = {'current': self.initial_current}
         if self._started:
             self._hold({**self._pending.pop('inputs', {}), **initial})
@@ -277,6 +279,9 @@ class Runner:
         if self.sim.reset_note:
             self._log('warn', f'reset: {self.sim.reset_note}; starting from the nearest '
                               'state found')
+        # The energies count from the reset on (each experiment its own).
+        self._meter = energy.Meter(self.sim.model)
+        self._meter_due = self.sim.t
         like = {t.topic: t.like for t in self.readout.topics if t.like}
         self.sensors = SensorBank(self.profile, self.sim.dt * self.cfg.publish_every, like)
         self._sensed = {sig for sig in self.sensors.channels
@@ -289,6 +294,13 @@ class Runner:
         self._last_cmd: float | None = None
         self._watchdog = False
         self._y = self.sim.outputs()
+
+    def _file_current(self) -> float:
+        """The pump's current as the model holds it unless told (a circuit file's: an
+        excavator's pump at rest; the paper's: 50 % displacement)."""
+        model = self.sim.model
+        name = model.plant_inputs().get('current')
+        return float(model.u0[model.input_index(name)]) if name else self.params.I_nominal
 
     def _hold(self, values: Mapping[str, float]) -> None:
         """Hold inputs from the next increment: the operating point's by its names
@@ -520,10 +532,14 @@ class Runner:
         y = self.sim.outputs()
         self._y = y
         r = self.readout
+        self._meter.add(self.sim.t, y)
         true = r.signals(y)
         true.pop('solenoid_current', None)  # published before the increment, see above
         signals = {k: self._sense(k, v) for k, v in true.items()}
         extra = {k: self._sense(k, v) for k, v in r.extra(y).items()}
+        if self._meter.names and self.sim.t >= self._meter_due - 0.5 * self.sim.dt:
+            extra.update(self._meter.values())
+            self._meter_due = self.sim.t + energy.PUBLISH_PERIOD
         sink.measurement(Frame(self.sim.t, signals, r.velocities(y), r.efforts(y), extra,
                                r.joints(y)))
 

@@ -45,6 +45,7 @@ LOOP_TOPICS = IDENT_TOPICS + ['load_flow', 'controller/state']
 STAGES = ('identification', 'fitting', 'closed loop', 'model analysis', 'report')
 #: The stage names of a graph that ran beside the campaign's (the Fig. 1 duty cycle).
 BESIDE = 'Fig. 1 (beside): '
+BESIDE_EXCAVATOR = 'excavator (beside): '
 
 
 # ---- a stage that fails ---------------------------------------------------------------------
@@ -314,7 +315,8 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
                      idents: Sequence[Experiment], loops: Sequence[Experiment], walls: dict,
                      started: float, starts: dict | None = None,
                      echo: Callable[[str], None] = print, pool=None,
-                     calibrate: bool = False, fig1: Sequence[Experiment] = ()) -> Path:
+                     calibrate: bool = False, fig1: Sequence[Experiment] = (),
+                     excavator: Sequence[Experiment] = ()) -> Path:
     """Stages 2, 4 and 5 of the demo on its bags: fit, model analysis, report.
 
     Parameters
@@ -343,6 +345,8 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
     fig1 : sequence of Experiment
         The Fig. 1 duty cycles that were run (:mod:`.fig1`), judged and drawn in a section
         of their own.
+    excavator : sequence of Experiment
+        The excavator's duty cycle, if it was run (:mod:`.excavator`), likewise.
     pool : concurrent.futures.Executor, optional
         Where the work that waits for nothing here runs beside the fit (the operating map
         and dither figures, the plant's twin); without one, all of it runs in turn.
@@ -410,6 +414,16 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
         echo(report.text_table(cycle.TABLE_HEAD, cycle.table_rows(duty_results)))
         kinds = sorted({e.name.rsplit('_', 1)[1] for e in fig1}, reverse=True)
         duty = (duty_results, [figs / f'fig1_{kind}.png' for kind in kinds])
+    dig = None
+    if excavator:
+        from . import excavator as machine
+        exp = excavator[0]
+        with stage('excavator analysis'):
+            circuit, dig_run, dig_figures = machine.analyse(exp.bag(bag_dir),
+                                                            starts.get(exp.name, 0.0), profile)
+        echo(report.text_table(machine.SPEED_HEAD, machine.speed_rows(dig_figures)))
+        echo(report.text_table(machine.ENERGY_HEAD, [machine.energy_row(dig_figures)]))
+        dig = (dig_figures, figs / 'excavator.png')
     t0 = time.perf_counter()
     echo('[4/5 model analysis] modes and the singular-perturbation check ...')
     with stage('model analysis'):
@@ -426,19 +440,22 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
         plots.plot_closed_loop(loop_results, figs / 'emc_vs_pi.png')
         for kind in kinds:
             cycle.plot(runs, kind, figs / f'fig1_{kind}.png')
+        if dig is not None:
+            machine.plot(dig_run, circuit, dig[1])
         maps()
     walls['report'] = stage_times(time.perf_counter() - t0)
     # A graph beside the campaign's adds its simulated time, not its idle time.
     walls['total'] = stage_times(time.perf_counter() - started,
                                  sum(v['simulated_s'] for v in walls.values()),
                                  sum(v['overhead_s'] for k, v in walls.items()
-                                     if not k.startswith(BESIDE)))
+                                     if not k.startswith((BESIDE, BESIDE_EXCAVATOR))))
     with stage('report'):
         sections = report.report_sections(ident, truth, rows, loop_results, modal, text, hyst,
-                                          walls, fit_paths, figs, bag_dir, calibration, duty)
+                                          walls, fit_paths, figs, bag_dir, calibration, duty,
+                                          dig)
         page = report.write_html(run_dir, sections)
         write_text(run_dir / 'summary.json', json.dumps(report.summary(
-            ident, truth, loop_results, walls, duty[0] if duty else None), indent=2) + '\n',
-            'summary')
+            ident, truth, loop_results, walls, duty[0] if duty else None,
+            dig[0] if dig else None), indent=2) + '\n', 'summary')
     echo(report.text_table(report.STAGE_HEAD, report.stage_rows(walls)))
     return page

@@ -15,7 +15,7 @@ the simplified circuit model the controller needs.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,7 +31,7 @@ from hydropump_sim.steady import equilibrium
 
 from ..control import ControllerConfig, load_config, make_controller
 from ..control.design import pi_margin_compensated_tuning
-from .harness import LoopRun, run_loop
+from .harness import Event, LoopRun, run_loop
 
 CONTROLS = ('margin', 'open', 'hydromechanical')
 #: The hydromechanical compensator's default margin [Pa] without a controller configuration.
@@ -77,16 +77,19 @@ def at_rest(circuit: Circuit, u: np.ndarray | None = None) -> np.ndarray:
 
 def controller_config(circuit: Circuit, eq=None, config: ControllerConfig | None = None
                       ) -> ControllerConfig:
-    """The controller for a circuit: ``config`` (default ``controller.yaml`` beside the
-    circuit's file or its folder, if it was made for the circuit's pump, else designed
-    from the plant) with the line capacitance the circuit presents at the pump's
+    """The controller for a circuit: ``config`` (default the one ``hydropump design
+    --circuit`` writes for it, ``controller_<circuit>.yaml``, or ``controller.yaml``, beside
+    the circuit's file or in its folder's parent, if it was made for the circuit's pump, else
+    designed from the plant) with the line capacitance the circuit presents at the pump's
     outlet."""
     pump = circuit.pump()
     plant = pump.comp.params.plant
     if config is None:
-        src = Path(circuit.source).parent
+        src = Path(circuit.source)
         found = None
-        for cand in (src / 'controller.yaml', src.parent / 'controller.yaml'):
+        own = f'controller_{src.stem}.yaml'
+        for cand in (src.parent / own, src.parent.parent / own,
+                     src.parent / 'controller.yaml', src.parent.parent / 'controller.yaml'):
             if cand.is_file():
                 found = cand
                 break
@@ -166,7 +169,8 @@ def run_circuit(circuit: Circuit, duration: float,
                 inputs: Mapping[str, Signal] | None = None, *, control: str = 'margin',
                 algorithm: str | None = None, margin: float | None = None,
                 config: ControllerConfig | None = None, profile: SensorProfile | None = None,
-                settle: float | None = None, dt: float = 1.0e-3) -> CircuitRun:
+                settle: float | None = None, dt: float = 1.0e-3,
+                events: Sequence[Event] = ()) -> CircuitRun:
     """Run a circuit for ``duration`` [s] with scheduled ``inputs`` under ``control``.
 
     Parameters
@@ -186,6 +190,8 @@ def run_circuit(circuit: Circuit, duration: float,
     settle : float, optional
         Time [s] run before ``t = 0`` with the inputs of ``t = 0``, not recorded: the loop
         settles from its start (default 1.5 s under margin control, 0 otherwise).
+    events : sequence of Event
+        Inputs held from their time on (an operator's duty cycle), and controller events.
     """
     if control not in CONTROLS:
         raise InputError(f'control {control!r}: choose one of {", ".join(CONTROLS)}')
@@ -221,7 +227,7 @@ def run_circuit(circuit: Circuit, duration: float,
         ctrl = make_controller(cfg)
     run = run_loop(circuit, duration, controller=ctrl, inputs=inputs,
                    profile=profile or SensorProfile.from_config(SensorConfig()), settle=settle,
-                   dt=dt, start=start, x0=x0)
+                   dt=dt, start=start, x0=x0, events=events)
     return CircuitRun(run.model, run.t, run.y, run.u, run.command, run.t_ctrl, run.state,
                       run.meas, run.mode, run.violations, control,
                       ctrl.algorithm if ctrl else None, margin,

@@ -34,6 +34,9 @@ import numpy as np
 
 from hydropump_sim.sensors import SensorProfile
 
+from .duty import held_inputs as duty_held
+from .duty import mean20
+from .duty import schedule as duty_schedule
 from .experiment import EXCITATION_BASE, Experiment
 
 #: The loads of Fig. 1 (section names in fig1.yaml).
@@ -80,24 +83,14 @@ def circuit_sets(control: str, kind: str) -> str:
 
 
 def schedule(duty: Sequence[tuple] = DUTY) -> list[tuple[float, str, dict]]:
-    """The duty cycle as the simulator's parameter events, those of one instant together."""
-    out: dict[float, dict] = {}
-    for t, name, value in duty:
-        out.setdefault(float(t), {})[f'inputs.{name}'] = float(value)
-    return [(t, 'simulator', values) for t, values in sorted(out.items())]
+    """The duty cycle as the simulator's parameter events (:func:`.duty.schedule`)."""
+    return duty_schedule(duty)
 
 
 def held_inputs(t: np.ndarray, duty: Sequence[tuple] = DUTY,
                 start: Mapping[str, float] = START) -> dict[str, np.ndarray]:
     """Every duty-cycle input on the times ``t`` [s from the cycle's start]."""
-    out = {}
-    for name, v0 in start.items():
-        v = np.full(t.shape, float(v0))
-        for te, n, value in sorted(duty, key=lambda e: e[0]):
-            if n == name:
-                v[t >= te] = value
-        out[name] = v
-    return out
+    return duty_held(t, duty, start)
 
 
 def fig1_experiments(circuit, variants: Sequence[tuple[str, str]] = VARIANTS,
@@ -144,7 +137,7 @@ def recorder_topics(topics: Sequence[str]) -> list[str]:
     simulator waits to see read, and what :func:`duty_figures` reads. Every message costs
     each node a callback: fewer make the runs beside the paper's campaign lighter."""
     keep = set(bag_topics())
-    return [t for t in topics if t in keep or not (t.startswith('loads/')
+    return [t for t in topics if t in keep or not (t.startswith(('loads/', 'energy/'))
                                                    or t == 'controller/state')]
 
 
@@ -189,13 +182,6 @@ class DutyRun:
         return self.p_l * self.q_p - sum(self.p[n] * self.q[n] for n in LOADS)
 
 
-def _mean20(t: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """20 ms centred moving average (the pressure sensors' noise out)."""
-    from hydropump_sim.metrics import moving_average
-    k = max(1, int(round(0.02 / float(np.median(np.diff(t))))))
-    return moving_average(x, k) if k > 1 else x
-
-
 def duty_figures(run: DutyRun, p_crack: float, margin: float = MARGIN) -> dict:
     """What a run did (SI). ``p_crack`` is the relief valve's cracking pressure [Pa].
 
@@ -211,7 +197,7 @@ def duty_figures(run: DutyRun, p_crack: float, margin: float = MARGIN) -> dict:
     """
     t = run.t
     ok = np.isfinite(run.q_p)
-    err = _mean20(t, run.margin) - margin
+    err = mean20(t, run.margin) - margin
     settled = np.zeros(t.shape, bool)
     for a, b in SETTLED:
         settled |= run.window(a, b)
@@ -226,7 +212,7 @@ def duty_figures(run: DutyRun, p_crack: float, margin: float = MARGIN) -> dict:
         demand[n] = float(run.q[n][before].mean() * c1 / c0) if c0 > 0 else 0.0
         flow[n] = float(run.q[n][sat].mean())
         delivered[n] = flow[n] / demand[n] if demand[n] > 0 else np.nan
-    p_l = _mean20(t, run.p_l)
+    p_l = mean20(t, run.p_l)
     dt = float(np.median(np.diff(t)))
     pump_energy = float(np.sum((run.p_l * run.q_p)[ok]) * dt)
     out.update(demand=demand, flow=flow, delivered=delivered,
@@ -282,14 +268,14 @@ def plot(runs: Mapping[str, DutyRun], kind: str, path: Path, margin: float = MAR
         if k != kind:
             continue
         col = styles[control]
-        axes[0].plot(run.t, _mean20(run.t, run.p_l) / 1e5, col, lw=1,
+        axes[0].plot(run.t, mean20(run.t, run.p_l) / 1e5, col, lw=1,
                      label=f'P_l, {LABELS[control]}')
-        axes[1].plot(run.t, _mean20(run.t, run.margin) / 1e5, col, lw=1,
+        axes[1].plot(run.t, mean20(run.t, run.margin) / 1e5, col, lw=1,
                      label=LABELS[control])
         axes[3].plot(run.t, run.loss / 1e3, col, lw=1, label=LABELS[control])
         if control == 'emc':
             for j, n in enumerate(LOADS):
-                axes[0].plot(run.t, _mean20(run.t, run.p[n]) / 1e5, color='0.5', lw=0.8,
+                axes[0].plot(run.t, mean20(run.t, run.p[n]) / 1e5, color='0.5', lw=0.8,
                              ls=('-', '--', ':')[j], label=f'{n} pressure (EMC run)')
                 axes[2].plot(run.t, run.q[n] * 6e4, f'C{j + 3}', lw=1, label=f'{n}')
             axes[2].plot(run.t, run.q_p * 6e4, 'k', lw=1, label='pump')

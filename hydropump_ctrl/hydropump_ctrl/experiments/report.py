@@ -76,7 +76,8 @@ CALIBRATION_HEAD = ['parameter', 'start', 'calibrated', 'plant', 'error']
 
 
 def report_sections(ident, truth, rows, loops, modal, analysis_text, hyst, walls, fit_paths,
-                    figs, bag_dir, calibration=None, duty=None) -> list[tuple[str, str]]:
+                    figs, bag_dir, calibration=None, duty=None, dig=None
+                    ) -> list[tuple[str, str]]:
     """The sections of the page, ``(title, HTML body)``: identification, Bode, steps,
     hysteresis, closed loop, model analysis and the run's wall times.
 
@@ -85,7 +86,8 @@ def report_sections(ident, truth, rows, loops, modal, analysis_text, hyst, walls
     :func:`.plots.plot_hysteresis`, ``fit_paths`` what :func:`~hydropump_ctrl.ident.write_report`
     wrote, ``figs`` the folder of the PNG figures, ``calibration`` the rows and the figure of
     :func:`.campaign.bench_calibration` (or ``None``), ``duty`` the Fig. 1 duty cycle's
-    figures (:func:`.fig1.duty_figures` by run) and its PNG files (or ``None``).
+    figures (:func:`.fig1.duty_figures` by run) and its PNG files (or ``None``), ``dig``
+    the excavator cycle's (:func:`.excavator.cycle_figures`) and its PNG file (or ``None``).
     """
     head, lrows = loop_table(loops)
     return [
@@ -129,6 +131,8 @@ def report_sections(ident, truth, rows, loops, modal, analysis_text, hyst, walls
          + _img(figs / 'emc_vs_pi.png')),
         *([('The circuit of Fig. 1: load sensing against the highest load, through the nodes',
             _fig1_text(duty))] if duty else []),
+        *([('An excavator: one dig, lift, swing and dump cycle, through the nodes',
+            _excavator_text(dig))] if dig else []),
         ('Model analysis (section IV)', f'<pre>{html.escape(modal)}</pre>'
          f'<details><summary>full analysis</summary><pre>{html.escape(analysis_text)}'
          f'</pre></details>'),
@@ -136,6 +140,42 @@ def report_sections(ident, truth, rows, loops, modal, analysis_text, hyst, walls
          + f'<p>Bags (rosbag2, MCAP): <code>{html.escape(str(bag_dir.resolve()))}</code>; '
            '<code>ros2 bag info</code> and <code>ros2 bag play</code> read them.</p>'),
     ]
+
+
+def _excavator_text(dig) -> str:
+    from . import excavator as m
+    f, png = dig
+    return (
+        '<p>config/circuits/excavator.yaml: a 15-20 t excavator on one load-sensing pump '
+        '(420 L/min, cut-off 300 bar, main relief 330 bar, load-sensing relief 285 bar); boom, '
+        'arm and bucket cylinders and the swing motor on post-compensated 4/3 sections (flow '
+        'sharing), counterbalance valves holding the boom and the arm, brake valves and '
+        'cross-port reliefs on the swing, hoses to the boom, a reduced pilot supply with its '
+        f'accumulator. One cycle of {m.DURATION:g} s through the simulator (the bench '
+        'sensors, published at 200 Hz), the controller (config/controller_excavator.yaml: '
+        f'EMC, margin {m.MARGIN / 1e5:g} bar) and the recorder: '
+        + '; '.join(f'{a:g} s {n}' for n, a, _ in m.PHASES) + '.</p>'
+        "<p>Speed against demand: each actuator's mean speed from "
+        f'{m.SETTLE:g} s after its lever last moved, against what its lever asks: its '
+        "valve's meter-in edge at that opening with the metering pressure the margin leaves "
+        '(margin less the compensator spring), over the area it fills. Below 100 %: the '
+        'pump saturated and every section shares what it gives alike (flow sharing), or a '
+        'load that accelerates (the swing, torque-limited by its cross-port relief) or '
+        'stops on its end (the bucket at breakout).</p>'
+        + _table(m.SPEED_HEAD, m.speed_rows(f))
+        + f'<p>Margin: mean |P_l - P_LS - {m.MARGIN / 1e5:g} bar| '
+          f'{f["margin_error"] / 1e5:.2f} bar, within 2 bar {100 * f["margin_held"]:.0f} % '
+          f'of the time the pump can hold it ({100 * f["margin_samples"]:.0f} % of the '
+          'cycle: not saturated, under its cut-off, settled). Pressure peaks: pump '
+          f'{f["p_peak"] / 1e5:.0f} bar (20 ms mean); chambers '
+        + ', '.join(f'{n} {p / 1e5:.0f}' for n, p in f['chamber_peak'].items())
+        + " bar (port reliefs 350 bar, the swing's cross-port 280 bar).</p>"
+          "<p>The energy account over the cycle, from the simulator's energy/* topics "
+          "(every component's own terms, summed): what the pump supplied, what reached the "
+          'loads (negative when they drive: a boom let down), what is stored (kinetic, '
+          'oil springs, gas), and where the rest was lost; unaccounted: what the sum leaves '
+          'over the energy supplied.</p>'
+        + _table(m.ENERGY_HEAD, [m.energy_row(f)]) + _img(png))
 
 
 def _fig1_text(duty) -> str:
@@ -183,9 +223,10 @@ def stage_rows(stages: dict) -> list[list[str]]:
     return rows
 
 
-def summary(ident, truth: dict, loops: dict, walls: dict, duty: dict | None = None) -> dict:
+def summary(ident, truth: dict, loops: dict, walls: dict, duty: dict | None = None,
+            dig: dict | None = None) -> dict:
     """The run's numbers for ``summary.json`` (SI; the closed-loop traces left out; the Fig. 1
-    duty cycle's figures under ``fig1``)."""
+    duty cycle's figures under ``fig1``, the excavator's under ``excavator``)."""
     p = ident.pooled
     return {'identification': {'G0': p.mean['G0'], 'G0_std': p.std['G0'],
                                'tau': p.mean['tau'], 'tau_std': p.std['tau'],
@@ -195,7 +236,7 @@ def summary(ident, truth: dict, loops: dict, walls: dict, duty: dict | None = No
             'closed_loop': {k: {kk: vv for kk, vv in v.items() if kk != 'y'}
                             for k, v in loops.items()},
             'wall_time_s': {k: v['wall_s'] for k, v in walls.items()}, 'stages': walls,
-            **({'fig1': duty} if duty else {})}
+            **({'fig1': duty} if duty else {}), **({'excavator': dig} if dig else {})}
 
 
 # ---- the page -------------------------------------------------------------------------------

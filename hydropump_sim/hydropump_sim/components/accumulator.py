@@ -78,6 +78,7 @@ def kernel(t, x, dx, u, p, y, P, Q, V):
     y[1] = v_oil
     y[2] = q
     y[3] = dp * q
+    y[4] = p_gas * q
 
 
 @dataclass(frozen=True)
@@ -106,13 +107,15 @@ class AccumulatorParams:
 
 class Accumulator(Component):
     kind = 'accumulator'
+    LOSS_GROUP = 'lines'
     doc = 'gas-charged bladder accumulator: polytropic gas, inlet restriction, poppet'
     Params = AccumulatorParams
     PORTS = (PortSpec('port', 'oil port'),)
     SIGNALS = (SignalSpec('pressure', 'Pa', 'gas pressure (gauge)'),
                SignalSpec('volume', 'm^3', 'oil volume in the accumulator'),
                SignalSpec('flow', 'm^3/s', 'flow into the accumulator'),
-               SignalSpec('loss', 'W', 'power dissipated in the inlet'))
+               SignalSpec('loss', 'W', 'power dissipated in the inlet'),
+               SignalSpec('stored', 'W', 'power into the gas, p_gas q'))
     kernel = kernel
 
     def precharge(self) -> float:

@@ -108,6 +108,28 @@ class JointSpec:
     velocity: str | None
 
 
+#: The energy account (the circuit sums them into ``power:*`` signals, hydropump_sim.energy):
+#: a component's signals of these names [W], from the power its ports take,
+#: ``sum P_port Q_into_it = loss + work + stored - supply``.
+ENERGY_TERMS = {
+    'loss': 'dissipated: throttling, friction, leakage (never negative)',
+    'work': 'delivered to the world outside the circuit: a load force or torque times its '
+            'speed (negative when the load drives)',
+    'stored': 'the rate of energy it stores: kinetic, a spring, gas, its own volumes',
+    'supply': 'hydraulic power it gives the circuit (a pump)',
+}
+
+#: Where a component's ``loss`` counts in the energy account (``LOSS_GROUP``).
+LOSS_GROUPS = {
+    'metering': 'metering edges of directional valves and load orifices',
+    'compensators': 'pressure compensators, priority and reducing valves',
+    'relief': 'relief valves: main, load-sensing, port and cross-port',
+    'holding': 'holding valves: counterbalance, pilot-operated and check valves',
+    'lines': 'hoses, restrictors and accumulator inlets',
+    'actuators': 'friction, cushions and leakage in cylinders and motors',
+    'signal': 'the load-sensing signal network: shuttles, passages and bleeds',
+}
+
 #: The roles a component may declare, and what each means to the suite.
 ROLES = {
     'pump': "the circuit's pump: its flow and pressures are the suite's pump signals",
@@ -161,6 +183,8 @@ class Component:
     #: Its inputs are the operating point the simulator holds (the pump's current and
     #: speed, the paper load's pressure), not an operator's or a duty cycle's.
     PLANT_INPUTS: ClassVar[bool] = False
+    #: Where its ``loss`` signal counts (:data:`LOSS_GROUPS`); '' if it has none.
+    LOSS_GROUP: ClassVar[str] = ''
 
     def __init__(self, name: str, params: Any, ports: Mapping[str, list[str]],
                  fluid: Any = None):

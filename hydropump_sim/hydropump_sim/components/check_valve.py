@@ -50,6 +50,7 @@ class CheckParams:
 
 class CheckValve(Component):
     kind = 'check_valve'
+    LOSS_GROUP = 'holding'
     doc = 'check valve: opens from p_crack to p_full, no reverse flow'
     Params = CheckParams
     PORTS = (PortSpec('in', 'inlet'), PortSpec('out', 'outlet'))

@@ -125,6 +125,7 @@ class CounterbalanceParams:
 
 class Counterbalance(Component):
     kind = 'counterbalance'
+    LOSS_GROUP = 'holding'
     doc = 'counterbalance valve: holds a load, pilot-opened descent, free-flow check'
     Params = CounterbalanceParams
     PORTS = (PortSpec('load', 'cylinder side'),

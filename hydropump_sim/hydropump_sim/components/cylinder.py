@@ -61,8 +61,8 @@ def kernel(t, x, dx, u, p, y, P, Q, V):
         F_cu = cushion(pos - (L - l_c), l_c, A_b if A_b > 0.0 else A_a, v, k_c)
     elif v < 0.0:
         F_cu = cushion(l_c - pos, l_c, A_a, v, k_c)
-    F = (P[a] * A_a - P_b * A_b - u[0] - F_f - F_cu
-         + stop_force(pos - 0.5 * L, v, 0.5 * L, k_stop, c_stop))
+    F_stop = stop_force(pos - 0.5 * L, v, 0.5 * L, k_stop, c_stop)
+    F = P[a] * A_a - P_b * A_b - u[0] - F_f - F_cu + F_stop
     dx[0] = v
     dx[1] = F / m
     q_i = G * (P[a] - P_b)
@@ -79,6 +79,9 @@ def kernel(t, x, dx, u, p, y, P, Q, V):
     y[4] = u[0]
     y[5] = P_b
     y[6] = (F_f + F_cu) * v + q_i * (P[a] - P_b)
+    y[7] = u[0] * v
+    # Kinetic energy, and what the end stops take (their springs and dampers).
+    y[8] = v * F - F_stop * v
 
 
 @dataclass(frozen=True)
@@ -125,6 +128,7 @@ class CylinderParams:
 
 class Cylinder(Component):
     kind = 'cylinder'
+    LOSS_GROUP = 'actuators'
     doc = 'cylinder: two chambers, Stribeck friction, leakage, cushions, end stops, a force'
     Params = CylinderParams
     PORTS = (PortSpec('a', 'cap side'),
@@ -137,7 +141,9 @@ class Cylinder(Component):
                SignalSpec('flow', 'm^3/s', 'flow swept by the cap side, A_a v'),
                SignalSpec('force', 'N', 'external force'),
                SignalSpec('pressure_b', 'Pa', 'rod-side pressure'),
-               SignalSpec('loss', 'W', 'power dissipated: friction, cushions, leakage'))
+               SignalSpec('loss', 'W', 'power dissipated: friction, cushions, leakage'),
+               SignalSpec('work', 'W', 'power delivered to the load, force times velocity'),
+               SignalSpec('stored', 'W', "rate of kinetic energy, and the end stops' work"))
     kernel = kernel
     PASSAGE = False
     ROLES = frozenset({'actuator'})

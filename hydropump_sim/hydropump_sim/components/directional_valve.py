@@ -90,6 +90,7 @@ class ValveParams:
 
 class DirectionalValve(Component):
     kind = 'directional_valve'
+    LOSS_GROUP = 'metering'
     doc = 'proportional meter-in valve P -> A with a spool lag and a load-holding check'
     Params = ValveParams
     PORTS = (PortSpec('in', 'pressure port P'), PortSpec('out', 'work port A'),

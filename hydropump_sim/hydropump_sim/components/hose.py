@@ -97,6 +97,7 @@ def kernel(t, x, dx, u, p, y, P, Q, V):
     volume, beta, alpha, p_atm, floor, dp_floor, area = (p[7], p[8], p[9], p[10], p[11],
                                                          p[12], p[13])
     loss = 0.0
+    stored = 0.0
     p_up = P[a]
     for k in range(n):
         # segment k runs from node k to node k + 1 (node n is port b)
@@ -104,16 +105,19 @@ def kernel(t, x, dx, u, p, y, P, Q, V):
         dp_f = friction(x[k], r_lam, k_turb, re_per_q)
         dx[k] = (p_up - p_dn - dp_f) / inertia
         loss += dp_f * x[k]
+        stored += inertia * x[k] * dx[k]
         p_up = p_dn
     for j in range(1, n):
         i = n + j - 1
         dx[i] = continuity(x[i], x[j - 1] - x[j], volume, beta, alpha, p_atm, floor, dp_floor)
+        stored += x[i] * (x[j - 1] - x[j])
     Q[a] -= x[0]
     Q[b] += x[n - 1]
     y[0] = x[0]
     y[1] = x[n - 1]
     y[2] = x[0] / area
     y[3] = loss
+    y[4] = stored
 
 
 @dataclass(frozen=True)
@@ -129,13 +133,16 @@ class HoseParams:
 
 class Hose(Component):
     kind = 'hose'
+    LOSS_GROUP = 'lines'
     doc = 'hydraulic line or hose: n lumped pi segments with inertia, friction, compliance'
     Params = HoseParams
     PORTS = (PortSpec('a', 'end a'), PortSpec('b', 'end b'))
     SIGNALS = (SignalSpec('flow_a', 'm^3/s', 'flow into the hose at a'),
                SignalSpec('flow_b', 'm^3/s', 'flow out of the hose at b'),
                SignalSpec('velocity', 'm/s', 'mean fluid velocity at a (+ from a to b)'),
-               SignalSpec('loss', 'W', 'friction power'))
+               SignalSpec('loss', 'W', 'friction power'),
+               SignalSpec('stored', 'W', "rate of the oil's kinetic energy and of the power "
+                          'into its inner volumes'))
     kernel = kernel
 
     @property

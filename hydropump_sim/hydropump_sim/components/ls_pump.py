@@ -34,7 +34,9 @@ def kernel(t, x, dx, u, p, y, P, Q, V):
     q = p[3:3 + pump.N_P]
     over, n = pump.cutoff(x, dx, P[out], p[3 + pump.N_P:])
     error = margin - (P[out] - P[ls]) - over
-    Q[out] += pump.pump_equations(t, x[:n], dx[:n], n - 1, P[out], error, u[0], q, y)
+    q_l = pump.pump_equations(t, x[:n], dx[:n], n - 1, P[out], error, u[0], q, y)
+    Q[out] += q_l
+    y[pump.Y_SUPPLY] = P[out] * q_l
     y[pump.Y_IS] = P[out] - P[ls]
 
 

@@ -41,6 +41,8 @@ def kernel(t, x, dx, u, p, y, P, Q, V):
     y[4] = x[1]
     y[5] = P_b
     y[6] = T_f * w + G * dp * dp
+    y[7] = u[0] * w
+    y[8] = w * (D * dp - u[0] - T_f)
 
 
 @dataclass(frozen=True)
@@ -59,6 +61,7 @@ class MotorParams:
 
 class Motor(Component):
     kind = 'motor'
+    LOSS_GROUP = 'actuators'
     doc = 'hydraulic motor: displacement, inertia, friction, leakage, a load torque'
     Params = MotorParams
     PORTS = (PortSpec('a', 'inlet'), PortSpec('b', 'outlet', optional=True))
@@ -69,7 +72,9 @@ class Motor(Component):
                SignalSpec('torque', 'N m', 'load torque'),
                SignalSpec('angle', 'rad', 'shaft angle'),
                SignalSpec('pressure_b', 'Pa', 'outlet pressure'),
-               SignalSpec('loss', 'W', 'power dissipated: friction and leakage'))
+               SignalSpec('loss', 'W', 'power dissipated: friction and leakage'),
+               SignalSpec('work', 'W', 'power delivered to the load, torque times speed'),
+               SignalSpec('stored', 'W', 'rate of kinetic energy'))
     kernel = kernel
     PASSAGE = False
     ROLES = frozenset({'actuator'})

@@ -44,6 +44,7 @@ def coefficient(C_d: float, A: float, rho: float) -> float:
 
 class Orifice(Component):
     kind = 'orifice'
+    LOSS_GROUP = 'lines'
     doc = 'turbulent orifice C_d A sqrt(2 dp/rho), laminar near zero drop'
     Params = OrificeParams
     PORTS = (PortSpec('a', 'inlet'), PortSpec('b', 'outlet'))

@@ -29,6 +29,8 @@ def kernel(t, x, dx, u, p, y, P, Q, V):
     y[0] = q
     y[1] = u[0]
     y[2] = P[a] - u[0]
+    y[3] = (P[a] - u[0]) * q
+    y[4] = u[0] * q
 
 
 @dataclass(frozen=True)
@@ -45,6 +47,7 @@ class OrificeLoadParams:
 
 class OrificeLoad(Component):
     kind = 'orifice_load'
+    LOSS_GROUP = 'metering'
     doc = 'eq. 9: an orifice of aperture xi_u to a held load pressure P_u'
     Params = OrificeLoadParams
     PORTS = (PortSpec('in', 'the loaded node'),)
@@ -53,7 +56,9 @@ class OrificeLoad(Component):
               InputSpec('aperture', '-', 'aperture degree xi_u', 0.0, 1.0, 'aperture'))
     SIGNALS = (SignalSpec('flow', 'm^3/s', 'load flow Q_load'),
                SignalSpec('load_pressure', 'Pa', 'load pressure P_u'),
-               SignalSpec('dp', 'Pa', 'pressure drop across the orifice'))
+               SignalSpec('dp', 'Pa', 'pressure drop across the orifice'),
+               SignalSpec('loss', 'W', 'power dissipated in the orifice'),
+               SignalSpec('work', 'W', 'power delivered to the load, P_u Q_load'))
     kernel = kernel
     EXTERNAL_RETURN = True
     ROLES = frozenset({'load'})

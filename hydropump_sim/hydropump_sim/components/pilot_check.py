@@ -55,6 +55,7 @@ class PilotCheckParams:
 
 class PilotCheck(Component):
     kind = 'pilot_check'
+    LOSS_GROUP = 'holding'
     doc = 'pilot-operated check valve: free flow in -> out, reverse when piloted'
     Params = PilotCheckParams
     PORTS = (PortSpec('in', 'inlet (free-flow side)'), PortSpec('out', 'outlet (load side)'),

@@ -84,6 +84,7 @@ SIGNALS = (SignalSpec('flow', 'm^3/s', 'flow in -> out'),
 class SpoolCompensator(Component):
     """What the two compensators share: the spool, its state, its packed values."""
 
+    LOSS_GROUP = 'compensators'
     Params = CompensatorParams
     SIGNALS = SIGNALS
     ROLES = frozenset({'compensator'})

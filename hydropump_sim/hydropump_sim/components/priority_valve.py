@@ -68,6 +68,7 @@ class PriorityParams:
 
 class PriorityValve(Component):
     kind = 'priority_valve'
+    LOSS_GROUP = 'compensators'
     doc = 'priority valve: the cf port first, the excess to ef'
     Params = PriorityParams
     PORTS = (PortSpec('in', 'supply'), PortSpec('cf', 'controlled flow: the priority load'),

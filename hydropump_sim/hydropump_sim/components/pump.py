@@ -318,8 +318,10 @@ def kernel(t, x, dx, u, p, y, P, Q, V):
     lo = q[P_IMIN]
     current = min(max(u[U_CURRENT], lo), lo + 2.0 * q[P_IMAX])
     over, n = cutoff(x, dx, P[out], p[C_P + N_P:])
-    Q[out] += pump_equations(t, x[:n], dx[:n], n - 1, P[out],
-                             current - over - (q[P_IMIN] + q[P_IMAX]), u[U_SPEED], q, y)
+    q_l = pump_equations(t, x[:n], dx[:n], n - 1, P[out],
+                         current - over - (q[P_IMIN] + q[P_IMAX]), u[U_SPEED], q, y)
+    Q[out] += q_l
+    y[Y_SUPPLY] = P[out] * q_l
     y[Y_IS] += over  # the solenoid's own current: the cut-off acts on the spool
 
 
@@ -370,7 +372,10 @@ SIGNAL_UNITS = (('current', 'A', 'solenoid current I_s (eq. 2)'),
                 ('P_l', 'Pa', 'line pressure at the outlet (eq. 9)'),
                 ('Q_p', 'm^3/s', 'geometric pump flow (eq. 8)'),
                 ('Q_a', 'm^3/s', 'pilot flow out of the actuator (eq. 4)'),
-                ('q_l', 'm^3/s', 'flow delivered into the line, Q_p plus the pilot inflow'))
+                ('q_l', 'm^3/s', 'flow delivered into the line, Q_p plus the pilot inflow'),
+                ('supply', 'W', 'hydraulic power delivered, P_l q_l'))
+#: Where the pump's ``supply`` signal is.
+Y_SUPPLY = len(SIGNAL_UNITS) - 1
 
 
 class Pump(Component):

@@ -88,6 +88,7 @@ class ReliefParams:
 
 class Relief(Component):
     kind = 'relief'
+    LOSS_GROUP = 'relief'
     doc = 'relief valve: cracks at p_crack, full flow q_full at p_full, optional poppet lag'
     Params = ReliefParams
     PORTS = (PortSpec('in', 'protected node'), PortSpec('out', 'tank side'))

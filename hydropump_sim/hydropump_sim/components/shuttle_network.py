@@ -66,6 +66,7 @@ class ShuttleParams:
 
 class ShuttleNetwork(Component):
     kind = 'shuttle_network'
+    LOSS_GROUP = 'signal'
     doc = 'shuttle valves: the highest load pressure to the load-sensing line, with a bleed'
     Params = ShuttleParams
     PORTS = (PortSpec('out', 'load-sensing line (P_LS)'),

@@ -176,6 +176,7 @@ class Valve43Params:
 
 class Valve43(Component):
     kind = 'valve_4_3'
+    LOSS_GROUP = 'metering'
     doc = 'proportional 4/3 valve of a load-sensing block: P, T, A, B edges, LS passage'
     Params = Valve43Params
     PORTS = (PortSpec('P', 'pressure port'), PortSpec('T', 'tank port'),

@@ -140,6 +140,9 @@ def build_parser() -> Parser:
     ap.add_argument('--no-fig1', dest='fig1', action='store_false',
                     help="leave out the Fig. 1 duty cycle (a second graph beside the paper's "
                          'campaign)')
+    ap.add_argument('--no-excavator', dest='excavator', action='store_false',
+                    help="leave out the excavator's duty cycle (a third graph beside the "
+                         "paper's campaign)")
     ap.add_argument('--jobs', type=int_in(1), default=1, metavar='N',
                     help='run the experiments on N graphs at once, each in its own ROS '
                          'domain (default 1: one graph; at most the number of CPUs)')
@@ -322,10 +325,34 @@ def _start_fig1(pool, run_dir: Path, profile_path: Path, quick: bool):
     return exps, future
 
 
+def _start_excavator(pool, run_dir: Path, profile_path: Path):
+    """Submit the excavator's duty cycle's graph to ``pool``: its experiment and the future
+    of :func:`run_graph`. The simulator runs config/circuits/excavator.yaml (its plant
+    config/excavator_pump.yaml) with the bench's sensors but not its dither, publishing at
+    200 Hz (one sample per control period: its modes are of a few hertz, and 40 topics at
+    1 kHz would cost the graph more than the stepping); the controller runs
+    config/controller_excavator.yaml (hydropump design --circuit)."""
+    from hydropump_ctrl.experiments import excavator
+    from hydropump_sim.circuit import load_circuit
+    from hydropump_sim.measure import recorded_topics
+    path = excavator.circuit_path()
+    circuit = load_circuit(path, compile=False)
+    exps = excavator.excavator_experiments(circuit)
+    future = pool.submit(
+        run_graph, {'excavator duty cycle': exps}, run_dir, run_dir / 'logs' / 'excavator',
+        profile_path, '[excavator] ',
+        topics=excavator.recorder_topics(circuit, recorded_topics(str(path), commands=False)),
+        circuit_file=path, controller_file=excavator.controller_path(),
+        params_file=path.parent.parent / 'excavator_pump.yaml',
+        simulator={'input.dither_amp': 0.0}, publish_rate=200.0)
+    return exps, future
+
+
 def run(args, run_dir: Path) -> int:
     from hydropump_ctrl.experiments.campaign import (
         analyse_campaign,
         BESIDE,
+        BESIDE_EXCAVATOR,
         closed_loop_experiments,
         identification_experiments,
     )
@@ -342,9 +369,12 @@ def run(args, run_dir: Path) -> int:
     _progress(f'run folder: {run_dir}')
     # Two processes for the report's work that needs neither the graph nor the fit (the
     # operating map and dither figures, the plant's twin): they run beside the fit.
-    with _workers(2) as pool, _workers(1) as beside:
-        # The Fig. 1 duty cycle: a graph of its own, beside the paper's campaign.
+    with _workers(2) as pool, _workers(1) as beside, _workers(1) as machine:
+        # The Fig. 1 duty cycle and the excavator's: graphs of their own, beside the paper's
+        # campaign.
         duty = _start_fig1(beside, run_dir, profile_path, args.quick) if args.fig1 else None
+        dig = (_start_excavator(machine, run_dir, profile_path) if args.excavator
+               else None)
         # 1. The identification campaign, then 2. the closed loop; the stages are numbered
         # in the order they run.
         stages = {'identification': idents, 'closed loop': loops}
@@ -358,10 +388,16 @@ def run(args, run_dir: Path) -> int:
             fig1_walls, fig1_starts = future.result()
             walls.update({f'{BESIDE}{k}': v for k, v in fig1_walls.items()})
             starts.update(fig1_starts)
+        excavator = []
+        if dig is not None:
+            excavator, future = dig
+            dig_walls, dig_starts = future.result()
+            walls.update({f'{BESIDE_EXCAVATOR}{k}': v for k, v in dig_walls.items()})
+            starts.update(dig_starts)
         # 3. Fitting, 4. model analysis, 5. report: no graph needed.
         page = analyse_campaign(run_dir, run_dir / 'bags', params, profile, idents, loops,
                                 walls, t_all, starts, echo=_progress, pool=pool,
-                                calibrate=args.calibrate, fig1=fig1)
+                                calibrate=args.calibrate, fig1=fig1, excavator=excavator)
     print(f'\nreport: {page.resolve()}\nbags: {(run_dir / "bags").resolve()}')
     return 0
 
