@@ -91,7 +91,7 @@ class Topic:
 
 def model_topics(model) -> tuple[list[Topic], list[tuple[str, str]]]:
     """The topics a model adds (``ls_pressure``, ``loads/<name>/pressure``, ``flow``,
-    ``position``, ``velocity``, ``speed``, ``pressure_b``; the energy account's
+    ``position``, ``velocity``, ``speed``, ``angle``, ``pressure_b``; the energy account's
     ``energy/*``, kind ``energy``: cumulative, see :mod:`.energy`) and the command topics it
     takes ``(topic, input)``: ``loads/<name>/command``. A load whose signals are all measured
     signals of the suite (the paper's load) adds none."""
@@ -107,7 +107,8 @@ def model_topics(model) -> tuple[list[Topic], list[tuple[str, str]]]:
         for key, kind, like in (('pressure', 'pressure', 'line_pressure'),
                                 ('pressure_b', 'pressure', 'line_pressure'),
                                 ('flow', 'flow', 'line_flow'), ('position', 'position', None),
-                                ('velocity', 'velocity', None), ('speed', 'speed', None)):
+                                ('velocity', 'velocity', None), ('speed', 'speed', None),
+                                ('angle', 'angle', None)):
             if key in sig:
                 topics.append(Topic(f'loads/{name}/{key}', sig[key], kind, like))
         if 'command' in sig:

@@ -26,7 +26,7 @@ DEMO = Path(sys.executable).with_name('hydropump-demo')
 # 0.6 s stairs, and EMC on the three closed-loop scenarios, 1.2 s each.
 QUICK = {**{f'ident_{i}': 4 * 0.6 for i in (1, 2, 3)},
          **{f'emc_{s}': 1.2 for s in ('flow_step', 'aperture_step', 'margin_step')}}
-SIZE = 64 * 2**20  # bytes: the run folder of --quick --no-fig1 takes about 4 MB
+SIZE = 64 * 2**20  # bytes: the run folder of --quick --no-fig1 --no-excavator: about 4 MB
 
 
 @pytest.fixture
@@ -65,7 +65,8 @@ def test_a_disk_that_fills_keeps_the_bags_and_names_the_stage(small_disk):
     from mcap.reader import make_reader
     run = small_disk / 'run'
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
-    proc = subprocess.Popen([str(DEMO), '--quick', '--no-fig1', '--out', str(run)],
+    proc = subprocess.Popen([str(DEMO), '--quick', '--no-fig1', '--no-excavator', '--out',
+                             str(run)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     lines: queue.Queue = queue.Queue()
     threading.Thread(target=lambda: [lines.put(ln) for ln in proc.stdout] + [lines.put(None)],

@@ -20,8 +20,9 @@ import pytest
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 DEMO = Path(sys.executable).with_name('hydropump-demo')
-# The graph of the paper's campaign and the Fig. 1 graph beside it (in a worker process).
-GRAPHS = 2
+# The graph of the paper's campaign, and the Fig. 1 and excavator graphs beside it (each in
+# a worker process).
+GRAPHS = 3
 
 
 def children(pid: int) -> list[int]:
@@ -78,7 +79,7 @@ def test_sigterm_stops_every_graph_of_the_demo(tmp_path):
     drain.start()
     started: dict[tuple[int, str], str] = {}
     try:
-        # Up: both graphs have said 'ready in' (their nodes answer).
+        # Up: every graph has said 'ready in' (their nodes answer).
         out, ready, deadline = [], 0, time.monotonic() + 90
         while ready < GRAPHS:
             line = lines.get(timeout=max(0.1, deadline - time.monotonic()))
@@ -87,7 +88,7 @@ def test_sigterm_stops_every_graph_of_the_demo(tmp_path):
             out.append(line)
             ready += 'ready in' in line
         started = descendants(proc.pid)
-        # Six node processes (three a graph) besides the workers and the resource tracker.
+        # Three node processes a graph besides the workers and the resource tracker.
         nodes = {p: c for p, c in started.items() if 'multiprocessing' not in c}
         assert len(nodes) >= 3 * GRAPHS, started
         proc.send_signal(signal.SIGTERM)

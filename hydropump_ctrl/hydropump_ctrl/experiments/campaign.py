@@ -406,11 +406,15 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
     echo(report.text_table(*report.loop_table(loop_results)))
     duty, kinds = None, []
     if fig1:
+        from hydropump_sim.circuit import default_circuit_path, load_circuit
+
         from . import fig1 as cycle
         with stage('Fig. 1 analysis'):
+            overlap = cycle.overlaps(load_circuit(default_circuit_path().with_name('fig1.yaml'),
+                                                  compile=False))
             runs, duty_results = cycle.analyse({e.name: e.bag(bag_dir) for e in fig1}, starts,
                                                profile, params.fluid.p_atm,
-                                               params.relief.p_crack)
+                                               params.relief.p_crack, overlap)
         echo(report.text_table(cycle.TABLE_HEAD, cycle.table_rows(duty_results)))
         kinds = sorted({e.name.rsplit('_', 1)[1] for e in fig1}, reverse=True)
         duty = (duty_results, [figs / f'fig1_{kind}.png' for kind in kinds])
@@ -439,7 +443,7 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
         hyst = plots.plot_hysteresis(params, figs / 'hysteresis.png')
         plots.plot_closed_loop(loop_results, figs / 'emc_vs_pi.png')
         for kind in kinds:
-            cycle.plot(runs, kind, figs / f'fig1_{kind}.png')
+            cycle.plot(runs, kind, figs / f'fig1_{kind}.png', overlap)
         if dig is not None:
             machine.plot(dig_run, circuit, dig[1])
         maps()

@@ -182,8 +182,26 @@ class DutyRun:
         return self.p_l * self.q_p - sum(self.p[n] * self.q[n] for n in LOADS)
 
 
-def duty_figures(run: DutyRun, p_crack: float, margin: float = MARGIN) -> dict:
-    """What a run did (SI). ``p_crack`` is the relief valve's cracking pressure [Pa].
+def overlaps(circuit) -> dict[str, float]:
+    """Each load's valve overlap (``overlap_P``, a fraction of the spool's stroke): its
+    metering edge opens as ``(command - overlap) / (1 - overlap)``."""
+    parts = {pt.comp.name: pt.comp.params for pt in circuit.parts}
+    return {n: parts[f'{n}.valve'].overlap_P for n in LOADS}
+
+
+def demand_ratio(c0, c1, overlap: float):
+    """How much more a compensated section takes at command ``c1`` than at ``c0``: the
+    ratio of its edge's openings (its flow is proportional to its opening)."""
+    from hydropump_sim.components.valve_4_3 import opening
+    o0 = opening(float(c0), overlap)
+    return np.vectorize(lambda c: opening(float(c), overlap) / o0)(c1) if o0 > 0 else \
+        np.zeros(np.shape(c1))
+
+
+def duty_figures(run: DutyRun, p_crack: float, overlap: Mapping[str, float],
+                 margin: float = MARGIN) -> dict:
+    """What a run did (SI). ``p_crack`` is the relief valve's cracking pressure [Pa],
+    ``overlap`` each load valve's overlap (:func:`overlaps`).
 
     Returns
     -------
@@ -209,7 +227,7 @@ def duty_figures(run: DutyRun, p_crack: float, margin: float = MARGIN) -> dict:
     demand, flow, delivered = {}, {}, {}
     for n in LOADS:
         c0, c1 = cmd[f'{n}.command'][before].mean(), cmd[f'{n}.command'][sat].mean()
-        demand[n] = float(run.q[n][before].mean() * c1 / c0) if c0 > 0 else 0.0
+        demand[n] = float(run.q[n][before].mean() * demand_ratio(c0, c1, overlap[n]))
         flow[n] = float(run.q[n][sat].mean())
         delivered[n] = flow[n] / demand[n] if demand[n] > 0 else np.nan
     p_l = mean20(t, run.p_l)
@@ -243,7 +261,8 @@ def table_rows(results: Mapping[str, dict]) -> list[list[str]]:
 
 
 def analyse(bags: Mapping[str, Path], starts: Mapping[str, float], profile: SensorProfile,
-            p_atm: float, p_crack: float) -> tuple[dict, dict]:
+            p_atm: float, p_crack: float, overlap: Mapping[str, float]
+            ) -> tuple[dict, dict]:
     """Every run's :class:`DutyRun` and :func:`duty_figures`, by experiment name, from its
     bag and the simulation time it started at."""
     from ..ident import read_recording
@@ -252,11 +271,12 @@ def analyse(bags: Mapping[str, Path], starts: Mapping[str, float], profile: Sens
     for name, bag in bags.items():
         rec = read_recording(bag, flow_topic='pump_flow', signals=None, topics=bag_topics())
         runs[name] = DutyRun.from_recording(rec, starts.get(name, 0.0), p_atm, delay)
-        figures[name] = duty_figures(runs[name], p_crack)
+        figures[name] = duty_figures(runs[name], p_crack, overlap)
     return runs, figures
 
 
-def plot(runs: Mapping[str, DutyRun], kind: str, path: Path, margin: float = MARGIN) -> None:
+def plot(runs: Mapping[str, DutyRun], kind: str, path: Path, overlap: Mapping[str, float],
+         margin: float = MARGIN) -> None:
     """The cycle under each control for one compensator kind: pressures, margin, load flows
     (EMC's, against each section's demand), throttling power lost."""
     from .plots import pyplot, save
@@ -285,7 +305,7 @@ def plot(runs: Mapping[str, DutyRun], kind: str, path: Path, margin: float = MAR
                 c = cmd[f'{n}.command']
                 k0 = c[before].mean()
                 if k0 > 0:
-                    demand = run.q[n][before].mean() * c / k0
+                    demand = run.q[n][before].mean() * demand_ratio(k0, c, overlap[n])
                     span = run.t >= BEFORE[0]
                     axes[2].plot(run.t[span], demand[span] * 6e4, f'C{j + 3}', ls='--', lw=1)
     axes[1].axhline(margin / 1e5, color='k', lw=0.6, ls=':')
