@@ -4,7 +4,7 @@ control (the run the main job makes through the nodes).
 Truths:
 
 - energy: what the pump supplied equals what reached the loads, what is stored and what was
-  lost, over the whole cycle, to 1e-6 of the supply (the issue's bound; each component's
+  lost, over the whole cycle, to 1e-6 of the supply (each component's
   terms come from its own equations, hydropump_sim/energy.py), and every invariant holds
   over the run (the suite runs strict: a broken one raises);
 - an unsaturated section delivers what its lever asks: the meter-in edge's orifice flow
