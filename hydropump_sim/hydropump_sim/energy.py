@@ -161,6 +161,14 @@ def topics(model) -> list[tuple[str, str]]:
     return out
 
 
+def cumulative(model, t: np.ndarray, y: np.ndarray) -> dict[str, np.ndarray]:
+    """The energies of a whole run so far at each sample [J] by :func:`topics` name: what a
+    :class:`Meter` fed every sample gives (rows of signals ``y`` at times ``t``)."""
+    from scipy.integrate import cumulative_trapezoid
+    return {topic: cumulative_trapezoid(y[:, model.signal_index(signal)], t, initial=0.0)
+            for topic, signal in topics(model)}
+
+
 class Meter:
     """The energies of a run so far [J], its power signals integrated by the trapezoidal
     rule at each sample :meth:`add` is given (a simulator's published steps)."""

@@ -22,6 +22,7 @@ from .schema import (
     check_value,
     fmt,
     group,
+    must_exceed,
     ParamError,
     ParamSpec,
     read_params_file,
@@ -274,9 +275,7 @@ def _cross_checks(p: Params) -> list[str]:
     if rel(ac.mu_a, mu) > REL_TOL:
         out.append(f'actuator.mu_a = {fmt(ac.mu_a)} disagrees with h_a*sqrt(2/rho) = {fmt(mu)}'
                    f' (eq. 4): change both')
-    if p.relief.p_full <= p.relief.p_crack:
-        out.append(f'relief.p_full = {fmt(p.relief.p_full)} Pa must exceed relief.p_crack = '
-                   f'{fmt(p.relief.p_crack)} Pa')
+    out += must_exceed('relief.p_full', p.relief.p_full, 'relief.p_crack', p.relief.p_crack)
     if ac.P_a_bar >= p.line.P_l_bar:
         out.append(f'actuator.P_a_bar = {fmt(ac.P_a_bar)} Pa must be below line.P_l_bar = '
                    f'{fmt(p.line.P_l_bar)} Pa (the pilot valve feeds the actuator from the line)')

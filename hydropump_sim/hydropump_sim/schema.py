@@ -179,6 +179,15 @@ def fmt(v: float) -> str:
     return f'{v:.6g}'
 
 
+def must_exceed(hi_name: str, hi: float, lo_name: str, lo: float, unit: str = 'Pa'
+                ) -> list[str]:
+    """The line that refuses ``hi <= lo`` (a full-open pressure at or below its crack), or
+    none."""
+    if hi > lo:
+        return []
+    return [f'{hi_name} = {fmt(hi)} {unit} must exceed {lo_name} = {fmt(lo)} {unit}']
+
+
 def with_unit(value: float, unit: str) -> str:
     """``'120 Pa'``; a dimensionless value (unit ``-``) stands alone."""
     return fmt(value) if unit in ('-', '') else f'{fmt(value)} {unit}'

@@ -33,6 +33,16 @@ def held_inputs(t: np.ndarray, duty: Sequence[tuple], start: Mapping[str, float]
     return out
 
 
+def recorder_topics(topics: Sequence[str], keep: Sequence[str]) -> list[str]:
+    """Of a circuit's recorded ``topics``, those a duty cycle's bag keeps: the suite's
+    measurements (which an orchestrated simulator waits to see read) and ``keep``, what
+    its analysis reads. Every message costs each node a callback: fewer make the runs
+    beside the paper's campaign lighter."""
+    wanted = set(keep)
+    return [t for t in topics if t in wanted or not (t.startswith(('loads/', 'energy/'))
+                                                     or t == 'controller/state')]
+
+
 def mean20(t: np.ndarray, x: np.ndarray) -> np.ndarray:
     """20 ms centred moving average (the pressure sensors' noise out)."""
     from hydropump_sim.metrics import moving_average

@@ -38,6 +38,7 @@ import numpy as np
 
 from .duty import held_inputs as duty_held
 from .duty import mean20, schedule
+from .duty import recorder_topics as duty_recorder_topics
 from .experiment import Experiment
 
 #: The actuators (section names in excavator.yaml); the swing's is a motor.
@@ -117,7 +118,7 @@ def demand(circuit, load: str, command: np.ndarray, margin: float = MARGIN) -> n
     """The speed the operator's ``command`` asks of ``load`` [m/s, or rad/s of the swing
     motor]: its valve's meter-in edge at the command's opening, with the metering pressure
     the margin leaves (``margin`` less the compensator's spring), over the area it fills."""
-    from hydropump_sim.components.valve_4_3 import opening
+    from hydropump_sim.components.valve_4_3 import openings
     parts = {pt.comp.name: pt.comp.params for pt in circuit.parts}
     valve, comp = parts[f'{load}.valve'], parts[f'{load}.comp']
     rho = circuit.fluid.rho
@@ -125,8 +126,7 @@ def demand(circuit, load: str, command: np.ndarray, margin: float = MARGIN) -> n
     s = np.asarray(command, dtype=float)
     a_pa = valve.A_PA or valve.A_max
     a_pb = valve.A_PB or valve.A_max
-    area = np.where(s >= 0.0, a_pa, a_pb) * np.array([opening(abs(v), valve.overlap_P)
-                                                       for v in np.ravel(s)]).reshape(s.shape)
+    area = np.where(s >= 0.0, a_pa, a_pb) * openings(np.abs(s), valve.overlap_P)
     q = valve.C_d * area * math.sqrt(2.0 * dp / rho)
     if f'{load}.motor' in parts:
         return np.sign(s) * q / parts[f'{load}.motor'].D
@@ -158,12 +158,9 @@ def bag_topics(circuit) -> list[str]:
 
 
 def recorder_topics(circuit, topics: Sequence[str]) -> list[str]:
-    """Of a circuit's recorded ``topics``, those the cycle's bag keeps: the suite's
-    measurements (which an orchestrated simulator waits to see read) and what
-    :func:`cycle_figures` reads."""
-    keep = set(bag_topics(circuit))
-    return [t for t in topics if t in keep or not (t.startswith(('loads/', 'energy/'))
-                                                   or t == 'controller/state')]
+    """Of a circuit's recorded ``topics``, those the cycle's bag keeps
+    (:func:`.duty.recorder_topics`)."""
+    return duty_recorder_topics(topics, bag_topics(circuit))
 
 
 # ---- judging a run -------------------------------------------------------------------------
@@ -213,18 +210,13 @@ class ExcavatorRun:
     def from_loop(cls, run) -> ExcavatorRun:
         """From the offline twin (:class:`~.circuit_loop.CircuitRun`): true signals, the
         energies integrated as a simulator integrates them (every step)."""
-        from hydropump_sim.energy import Meter
-        meter = Meter(run.model)
-        energy = np.empty((run.t.size, len(meter.names)))
-        for k in range(run.t.size):
-            meter.add(run.t[k], run.y[k])
-            energy[k] = meter.total
+        from hydropump_sim.energy import cumulative
         return cls(run.t, run['pump.P_l'], run['ls.pressure'], run['pump.Q_p'], run.command,
                    {n: run[f'{n}.pressure'] for n in LOADS},
                    {n: run[f'{n}.pressure_b'] for n in LOADS},
                    {n: run[f'{n}.speed' if n == 'swing' else f'{n}.velocity'] for n in LOADS},
                    {n: run[f'{n}.position'] for n in CYLINDERS},
-                   dict(zip(meter.names, energy.T)))
+                   cumulative(run.model, run.t, run.y))
 
 
 def _filled(t: np.ndarray, v: np.ndarray) -> np.ndarray:

@@ -36,6 +36,7 @@ from hydropump_sim.sensors import SensorProfile
 
 from .duty import held_inputs as duty_held
 from .duty import mean20
+from .duty import recorder_topics as duty_recorder_topics
 from .duty import schedule as duty_schedule
 from .experiment import EXCITATION_BASE, Experiment
 
@@ -132,13 +133,9 @@ def bag_topics() -> list[str]:
 
 
 def recorder_topics(topics: Sequence[str]) -> list[str]:
-    """Of a circuit's recorded ``topics`` (:func:`hydropump_sim.circuit_plant.recorded_topics`),
-    those the duty cycle's bags keep: the suite's measurements, which an orchestrated
-    simulator waits to see read, and what :func:`duty_figures` reads. Every message costs
-    each node a callback: fewer make the runs beside the paper's campaign lighter."""
-    keep = set(bag_topics())
-    return [t for t in topics if t in keep or not (t.startswith(('loads/', 'energy/'))
-                                                   or t == 'controller/state')]
+    """Of a circuit's recorded ``topics`` (:func:`hydropump_sim.measure.recorded_topics`),
+    those the duty cycle's bags keep (:func:`.duty.recorder_topics`)."""
+    return duty_recorder_topics(topics, bag_topics())
 
 
 # ---- judging a run -------------------------------------------------------------------------
@@ -192,10 +189,9 @@ def overlaps(circuit) -> dict[str, float]:
 def demand_ratio(c0, c1, overlap: float):
     """How much more a compensated section takes at command ``c1`` than at ``c0``: the
     ratio of its edge's openings (its flow is proportional to its opening)."""
-    from hydropump_sim.components.valve_4_3 import opening
-    o0 = opening(float(c0), overlap)
-    return np.vectorize(lambda c: opening(float(c), overlap) / o0)(c1) if o0 > 0 else \
-        np.zeros(np.shape(c1))
+    from hydropump_sim.components.valve_4_3 import openings
+    o0 = openings(c0, overlap)
+    return openings(c1, overlap) / o0 if o0 > 0 else np.zeros(np.shape(c1))
 
 
 def duty_figures(run: DutyRun, p_crack: float, overlap: Mapping[str, float],

@@ -10,9 +10,9 @@ cylinder line.
 from dataclasses import dataclass
 
 from ..jitcache import jit
-from ..schema import fmt, spec
+from ..schema import must_exceed, spec
 from .base import Component, PortSpec, SignalSpec
-from .laws import clip01, G_LEAK_POPPET, sroot
+from .laws import clip01, edge, G_LEAK_POPPET
 from .orifice import coefficient
 
 
@@ -21,8 +21,7 @@ def kernel(t, x, dx, u, p, y, P, Q, V):
     a, b = int(p[0]), int(p[1])
     dp = P[a] - P[b]
     s = clip01((dp - p[3]) / (p[4] - p[3]))
-    q = p[2] * s * sroot(dp, p[5]) if s > 0.0 else 0.0
-    q += p[6] * dp
+    q = edge(p[2], s, dp, p[5], p[6])
     Q[a] -= q
     Q[b] += q
     y[0] = q
@@ -42,10 +41,7 @@ class CheckParams:
                          default=G_LEAK_POPPET)
 
     def cross_checks(self):
-        if self.p_full <= self.p_crack:
-            return [f'p_full = {fmt(self.p_full)} Pa must exceed p_crack = '
-                    f'{fmt(self.p_crack)} Pa']
-        return []
+        return must_exceed('p_full', self.p_full, 'p_crack', self.p_crack)
 
 
 class CheckValve(Component):

@@ -49,7 +49,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..jitcache import jit
-from ..schema import fmt, spec
+from ..schema import must_exceed, spec
 from .base import Component, PortSpec, SignalSpec, StateSpec
 from .laws import clip01, edge, G_LEAK_POPPET, lag, play, sroot
 from .orifice import coefficient
@@ -117,10 +117,7 @@ class CounterbalanceParams:
     dp_cr: float = spec('Pa', 'laminar/turbulent transition', 0.0, 1.0e6, default=1.0e4)
 
     def cross_checks(self):
-        if self.p_check_full <= self.p_check:
-            return [f'p_check_full = {fmt(self.p_check_full)} Pa must exceed p_check = '
-                    f'{fmt(self.p_check)} Pa']
-        return []
+        return must_exceed('p_check_full', self.p_check_full, 'p_check', self.p_check)
 
 
 class Counterbalance(Component):

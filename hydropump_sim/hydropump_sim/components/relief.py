@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import math
 
 from ..jitcache import jit
-from ..schema import fmt, spec
+from ..schema import must_exceed, spec
 from .base import Component, PortSpec, SignalSpec, StateSpec
 from .laws import clip01, G_LEAK_POPPET, play
 
@@ -80,10 +80,7 @@ class ReliefParams:
                          default=G_LEAK_POPPET)
 
     def cross_checks(self):
-        if self.p_full <= self.p_crack:
-            return [f'p_full = {fmt(self.p_full)} Pa must exceed p_crack = '
-                    f'{fmt(self.p_crack)} Pa']
-        return []
+        return must_exceed('p_full', self.p_full, 'p_crack', self.p_crack)
 
 
 class Relief(Component):

@@ -79,6 +79,11 @@ def opening(s, overlap):
     return clip01((s - overlap) / (1.0 - overlap))
 
 
+def openings(s, overlap: float) -> np.ndarray:
+    """:func:`opening` of each of the spool positions or commands ``s`` (an array)."""
+    return np.vectorize(opening, otypes=[float])(s, overlap)
+
+
 @jit
 def kernel(t, x, dx, u, p, y, P, Q, V):
     ip, it, ia, ib, il = int(p[0]), int(p[1]), int(p[2]), int(p[3]), int(p[4])
