@@ -74,25 +74,33 @@ def power_signals(parts, nodes: list[str], fixed) -> PowerSignals:
                         [i for i, n in enumerate(nodes) if n in fixed])
 
 
-def code_lines(ps: PowerSignals, y0: int) -> list[str]:
+def code(ps: PowerSignals, y0: int, table) -> list[str]:
     """The generated lines that set the power signals from ``y[y0]`` on (after every
-    kernel, with the nodes' net flows ``Q`` complete)."""
-    def total(idx, extra=()):
-        parts = [f'y[{i}]' for i in idx] + list(extra)
-        return ' + '.join(parts) if parts else '0.0'
+    kernel, with the nodes' net flows ``Q`` complete): a loop over an index table per
+    signal (``table(values)`` names a module-level table of the generated source), so that
+    the source grows with the number of terms, not of components."""
     out = []
     k = y0
-    fixed = [f'-P[{i}] * Q[{i}]' for i in ps.fixed_nodes]
-    free = [f'P[{i}] * Q[{i}]' for i in ps.free_nodes]
     slot = {}
+
+    def total(idx, fixed=False, free=False):
+        nonlocal k
+        out.append('    s = 0.0')
+        out.append(f'    for i in {table(idx)}:')
+        out.append('        s += y[i]')
+        for nodes, sign in ((ps.fixed_nodes, '-') if fixed else (None, ''),
+                            (ps.free_nodes, '+') if free else (None, '')):
+            if nodes:
+                out.append(f'    for i in {table(nodes)}:')
+                out.append(f'        s {sign}= P[i] * Q[i]')
+        out.append(f'    y[{k}] = s')
+        k += 1
+        return k - 1
+
     for t in TERMS:
-        extra = fixed if t == 'supply' else free if t == 'stored' else ()
-        out.append(f'    y[{k}] = {total(ps.terms[t], extra)}')
-        slot[t] = k
-        k += 1
+        slot[t] = total(ps.terms[t], fixed=t == 'supply', free=t == 'stored')
     for idx in ps.groups.values():
-        out.append(f'    y[{k}] = {total(idx)}')
-        k += 1
+        total(idx)
     out.append(f'    y[{k}] = y[{slot["supply"]}] - y[{slot["work"]}] - y[{slot["stored"]}]'
                f' - y[{slot["loss"]}]')
     return out

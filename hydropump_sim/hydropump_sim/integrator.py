@@ -231,10 +231,13 @@ def time_derivative(f, t, x, u, p, f0, ft, work, ybuf, timed, dt_time):
 
 
 @inline
-def w_matrix(m, t, x, u, p, h, f0, G, piv, J, work, ybuf):
-    """``G = I/(h gamma) - df/dx`` at ``x``, LU-factorised in place; False if singular."""
+def w_matrix(m, t, x, u, p, h, f0, G, piv, J, work, ybuf, fresh):
+    """``G = I/(h gamma) - df/dx`` at ``x``, LU-factorised in place; False if singular.
+    ``fresh``: ``J`` already holds ``df/dx`` at this point (a step retried after a
+    rejection starts where the rejected one did: only ``h`` changed)."""
     n = x.shape[0]
-    jacobian(as_function(m[0]), t, x, u, p, f0, m[1], J, work, ybuf, m[4], m[5])
+    if not fresh:
+        jacobian(as_function(m[0]), t, x, u, p, f0, m[1], J, work, ybuf, m[4], m[5])
     for i in range(n):
         for j in range(n):
             G[i, j] = -J[i, j]
@@ -273,7 +276,7 @@ def workspace(n, ny):
 
 
 @jit
-def rodas_step(m, t, X, u, P, h, rtol, Xnew, own_jacobian, ws, D):
+def rodas_step(m, t, X, u, P, h, rtol, Xnew, own_jacobian, ws, D, retry=False):
     """One Rodas4 step of size ``h`` for every row of ``X`` (a copy of the state per row of
     packed parameters ``P``); returns the scaled error norm of row 0 (inf if not finite).
 
@@ -283,7 +286,10 @@ def rodas_step(m, t, X, u, P, h, rtol, Xnew, own_jacobian, ws, D):
     ``own_jacobian`` each row uses its own Jacobian (the exact Rodas4 map of that row);
     otherwise they share row 0's factorised ``G`` and cost six right-hand sides a step.
     ``ws`` is the work space of :func:`workspace`; ``D`` (rows x 2 x n, or no rows) takes
-    each row's dense-output coefficients ``c2, c3``.
+    each row's dense-output coefficients ``c2, c3``. ``retry``: the previous call was this
+    step rejected, so row 0's Jacobian in ``ws`` is still the one at ``X[0]`` (a rejection
+    costs the new step's stages only; a quarter of a circuit's steps are rejected where
+    commands switch and pistons reach their stops).
     """
     rows, n = X.shape
     dense_out = D.shape[0] > 0
@@ -296,7 +302,8 @@ def rodas_step(m, t, X, u, P, h, rtol, Xnew, own_jacobian, ws, D):
         f(t, x, u, p, f0, ybuf)
         time_derivative(f, t, x, u, p, f0, ft, work, ybuf, m[2], m[3])
         if r == 0 or own_jacobian:
-            if not w_matrix(m, t, x, u, p, h, f0, G, piv, J, work, ybuf):
+            fresh = retry and r == 0 and (rows == 1 or not own_jacobian)
+            if not w_matrix(m, t, x, u, p, h, f0, G, piv, J, work, ybuf, fresh):
                 return np.inf
         stages(f, t, x, u, p, h, f0, ft, G, piv, K, xs, work, ybuf)
         for i in range(n):
@@ -351,7 +358,8 @@ def advance(m, t0, t1, X, u, P, h, rtol, h_min, max_steps, stats, own_jacobian, 
         steps += 1
         last = t + h >= t1 - 1.0e-12 * max(abs(t1), 1.0)
         hs = t1 - t if last else h
-        err = rodas_step(m, t, X, u, P, hs, rtol, Xnew, own_jacobian, ws, no_dense)
+        err = rodas_step(m, t, X, u, P, hs, rtol, Xnew, own_jacobian, ws, no_dense,
+                         last_rejected)
         if err <= 1.0:
             stats[0] += 1
             for r in range(rows):
@@ -462,7 +470,8 @@ def run_dense(m, X0, t0, dt, U, P, rtol, h_min, max_steps, decim, Y, X, stats, m
             steps += 1
             last = t + h >= t1 - 1.0e-12 * max(abs(t1), 1.0)
             hs = t1 - t if last else h
-            err = rodas_step(m, t, x, u, P, hs, rtol, Xnew, own_jacobian, ws, D)
+            err = rodas_step(m, t, x, u, P, hs, rtol, Xnew, own_jacobian, ws, D,
+                             last_rejected)
             if err <= 1.0:
                 stats[0] += 1
                 t_new = t1 if last else t + hs
@@ -499,3 +508,4 @@ def run_dense(m, X0, t0, dt, U, P, rtol, h_min, max_steps, decim, Y, X, stats, m
                 return FAIL_BUDGET, k
         k = k_end
     return OK, n_inc
+

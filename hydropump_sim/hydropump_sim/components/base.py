@@ -148,12 +148,15 @@ class Expansion:
 
     ``parts``: ``(name, kind, parameters, ports)`` of each primitive (names are full, e.g.
     ``boom.valve``; ports map to node names, internal ones named ``<composite>.<node>``);
-    ``inputs`` and ``signals``: the composite's own names -> ``'<part>.<name>'``.
+    ``inputs`` and ``signals``: the composite's own names -> ``'<part>.<name>'``;
+    ``groups``: a part -> the composite's parameter group it takes its values from, where
+    that is not the part's own last name (``boom.comp_b`` from ``boom.comp.*``).
     """
 
     parts: list[tuple[str, str, Mapping[str, Any], Mapping[str, Any]]]
     inputs: dict[str, str] = field(default_factory=dict)
     signals: dict[str, str] = field(default_factory=dict)
+    groups: dict[str, str] = field(default_factory=dict)
 
 
 class Component:

@@ -218,4 +218,8 @@ class Section(Component):
         else:
             inputs['torque'] = f'{n}.motor.torque'
             signals.update(speed=f'{n}.motor.speed', angle=f'{n}.motor.angle')
-        return Expansion(out, inputs, signals)
+        # Parts that take a group's values under another name (a side's compensator, the
+        # brake valves, the reliefs): where their --set values live.
+        groups = {name: g for name, _, values, _ in out for g, d in parts.items()
+                  if d and values is d and name != f'{n}.{g}'}
+        return Expansion(out, inputs, signals, groups)
