@@ -231,6 +231,8 @@ class Runner:
         self.stats = {'nan_commands': 0, 'clamped_commands': 0, 'lock_step_timeouts': 0,
                       'watchdog_trips': 0}
         self._periods: deque = deque(maxlen=2000)
+        self._costs: deque = deque(maxlen=20000)   # wall time of each step() [s]
+        self._overruns = 0
         self._events: list[tuple[str, float, str]] = []   # for the sink, out of the lock
         self._started = False       # the first step's signals are out
         self._reset_out = False     # a reset's signals are due
@@ -439,7 +441,9 @@ class Runner:
                 self._periods.append(now - last_wall)
             last_wall = now
             try:
+                t_step = time.perf_counter()
                 self.sim.step()
+                self._cost(time.perf_counter() - t_step)
             except IntegrationError as exc:
                 with self._cv:
                     self._failed = str(exc)
@@ -447,6 +451,25 @@ class Runner:
                 continue
             if self.sim.steps % every == 0:
                 self._emit(sink)
+
+    @property
+    def step_budget(self) -> float:
+        """The wall time [s] a step may take: its period when paced at a real-time factor,
+        the increment itself otherwise (what real time would allow it)."""
+        rtf = self.cfg.real_time_factor
+        return self.sim.dt / rtf if rtf > 0.0 and not self.cfg.lock_step else self.sim.dt
+
+    def _cost(self, cost: float) -> None:
+        """Account one step's wall time; a paced step that took longer than its period is
+        an overrun, and says so (throttled)."""
+        with self._cv:
+            self._costs.append(cost)
+        budget = self.step_budget
+        if cost > budget and self.cfg.real_time_factor > 0.0 and not self.cfg.lock_step:
+            self._overruns += 1
+            self._warn('overrun', f'step at t = {self.sim.t:.4f} s took {cost * 1e3:.3g} ms, '
+                       f'over its {budget * 1e3:.3g} ms period ({self._overruns} overruns '
+                       'so far): the simulation falls behind real time')
 
     def _gate(self) -> bool:
         """Wait (under the lock) until the next increment may run; False when stopping."""
@@ -556,6 +579,12 @@ class Runner:
                     'commanded_current': self._current}
         rtf = self.cfg.real_time_factor
         snap['sim_time'] = self.sim.t
+        with self._cv:
+            costs = np.array(self._costs)
+        snap['step_budget'] = self.step_budget
+        snap['overruns'] = self._overruns
+        for key, q in (('step_cost_p50', 50), ('step_cost_p99', 99), ('step_cost_max', 100)):
+            snap[key] = float(np.percentile(costs, q)) if costs.size else math.nan
         snap['accepted_steps'], snap['rejected_steps'] = (int(v) for v in self.sim.stats)
         snap['achieved_rtf'] = (self.sim.dt / float(np.mean(periods))) if periods.size \
             else math.nan

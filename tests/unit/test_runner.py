@@ -289,3 +289,24 @@ def test_lock_step_needs_a_sample_at_every_control_instant():
         cfg(lock_step=True, publish_rate=500.0)
     assert cfg(lock_step=True, publish_rate=200.0).publish_every == 5
     assert cfg(lock_step=False, publish_rate=500.0).publish_every == 2
+
+
+def test_step_costs_are_reported_against_the_period_and_overruns_warn(params):
+    """Every step's wall time is kept: /diagnostics gives its p50, p99 and max against the
+    period; a paced step longer than its period counts and warns (throttled)."""
+    logs = []
+    clock = FakeClock()
+    r = Runner(Simulator(params), cfg(real_time_factor=1.0), clock=clock, sleep=clock.sleep,
+               log=lambda level, text: logs.append((level, text)))
+    run(r, Sink(r, 50))
+    d = r.diagnostics()
+    assert 0.0 < d['step_cost_p50'] <= d['step_cost_p99'] <= d['step_cost_max']
+    assert d['step_budget'] == pytest.approx(1e-3)
+    # No real step takes a microsecond: at 1000x real time every one is over its period.
+    fast = Runner(Simulator(params), cfg(real_time_factor=1000.0), clock=clock,
+                  sleep=clock.sleep, log=lambda level, text: logs.append((level, text)))
+    run(fast, Sink(fast, 20))
+    d = fast.diagnostics()
+    assert d['step_budget'] == pytest.approx(1e-6)
+    assert d['overruns'] >= 19
+    assert [t for lvl, t in logs if lvl == 'warn' and 'over its 0.001 ms period' in t]

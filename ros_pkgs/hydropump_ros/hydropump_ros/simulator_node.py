@@ -398,12 +398,20 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         arr = DiagnosticArray(status=[
             status('plant', warn if any(flags.values()) else ok,
                    ', '.join(k for k, v in flags.items() if v) or 'inside all limits', flags),
-            status('integrator', error if d['failed'] else ok,
-                   d['failed'] or ('paused' if d['paused'] else 'running'),
+            status('integrator', error if d['failed'] else warn if d['overruns'] else ok,
+                   d['failed'] or ('paused' if d['paused'] else
+                                   f'running, {d["overruns"]} steps over their period'
+                                   if d['overruns'] else 'running'),
                    {'sim_time_s': f'{d["sim_time"]:.6f}', 'accepted_steps': d['accepted_steps'],
                     'rejected_steps': d['rejected_steps'],
                     'achieved_real_time_factor': f'{d["achieved_rtf"]:.3f}',
                     'step_period_error_p99_s': f'{d["period_error_p99"]:.6f}',
+                    # Each step's wall time against the period it must fit in.
+                    'step_cost_p50_s': f'{d["step_cost_p50"]:.6f}',
+                    'step_cost_p99_s': f'{d["step_cost_p99"]:.6f}',
+                    'step_cost_max_s': f'{d["step_cost_max"]:.6f}',
+                    'step_period_s': f'{d["step_budget"]:.6f}',
+                    'step_overruns': d['overruns'],
                     'lock_step': self.cfg.lock_step}),
             status('command', warn if bad else ok,
                    'watchdog: safe current applied' if d['watchdog'] else
