@@ -27,12 +27,12 @@ component and the port; then it lays out
 
 and generates the source of ``evaluate``: index tables and a loop per component type
 calling its compiled kernel on each component's slices, then continuity at each node (the
-source does not grow with the number of components, nor does numba's compile time). The Jacobian the stepper needs is the compiled
-``evaluate`` differenced one colour at a time: the compiler derives the sparsity (a
-component couples its own states and the pressures at its ports) and a colouring of it
-(columns that share no row move together), 12 evaluations for Fig. 1's 29 states. The
-source depends on the structure only (which components, which ports, how many states),
-never on parameter values, so a file compiles
+source does not grow with the number of components, nor does numba's compile time). The
+Jacobian the stepper needs is the compiled ``evaluate`` differenced one colour at a time:
+the compiler derives the sparsity (a component couples its own states and the pressures at
+its ports) and a colouring of it (columns that share no row move together), 13
+evaluations for Fig. 1's 37 states. The source depends on the structure only (which
+components, which ports, how many states), never on parameter values, so a file compiles
 once per structure and is cached on disk for every later process, in a folder of the user's
 own (:mod:`hydropump_sim.codecache`). The generated source holds indices and the package's
 module names only: no name or value of the circuit file reaches it, and component and node

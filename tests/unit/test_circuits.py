@@ -56,7 +56,7 @@ def test_the_paper_circuit_computes_what_the_plant_alone_computes(overrides):
         return np.where(t < 0.3, 0.46, 0.58) + 0.02 * np.sin(2 * np.pi * 3.0 * t)
     inputs = dict(current=current, aperture=step(1.0, 0.5, 0.35),
                   load_pressure=step(1.4, 1.2e7, 1.35e7))
-    ref = simulate(params, 2.0, **inputs)
+    ref = simulate(params, 2.0, config=STEPPED, **inputs)
     res = simulate(circuit, 2.0, {'pump.current': current,
                                           'load.aperture': inputs['aperture'],
                                           'load.load_pressure': inputs['load_pressure']},

@@ -7,7 +7,7 @@ import threading
 import numpy as np
 import pytest
 
-from hydropump_sim import equilibrium, simulate, Simulator
+from hydropump_sim import equilibrium, IntegratorConfig, simulate, Simulator
 from hydropump_sim.runner import Runner, SimulatorConfig
 from hydropump_sim.schema import build, ParamError
 from hydropump_sim.sensors import profile_from_dict
@@ -95,8 +95,10 @@ def test_free_run_matches_simulate_and_publishes_current_before_the_step(params)
     assert sink.events[0] == ('measurement', 0.0)
     assert sink.events[1][0] == 'current' and sink.events[1][1] == 0.0
     assert sink.events[2] == ('measurement', pytest.approx(1e-3))
-    # The same plant offline: from the equilibrium at 0.46 A, 0.54 A held from t = 0.
-    ref = simulate(params, 0.2, 0.54, x0=equilibrium(params, 0.46).x, dt_out=1e-3)
+    # The same plant offline, stepped as the node steps (a step ending at every increment):
+    # from the equilibrium at 0.46 A, 0.54 A held from t = 0.
+    ref = simulate(params, 0.2, 0.54, x0=equilibrium(params, 0.46).x, dt_out=1e-3,
+                   config=IntegratorConfig())
     q = np.array([f.signals['line_flow'] for f in sink.frames])
     np.testing.assert_allclose(q, ref.q_l, rtol=1e-6, atol=1e-12)
 
