@@ -51,9 +51,9 @@ from .components.relief import static_flow
 from .jitcache import cfunc, jit
 
 # What the plant modules (trim, linear, simulate) take from here besides the layouts below.
-__all__ = ['FINE', 'N_U', 'N_Y', 'P_DITHA', 'P_DPCRU', 'P_GAMMA', 'P_MUU', 'P_PATM', 'advance',
-           'evaluate', 'evaluate_c', 'groot', 'jacobian', 'pump_flow', 'relief_flow', 'run',
-           'state_scale', 'structure', 'structure_rows']
+__all__ = ['FINE', 'N_U', 'N_Y', 'P_DITHA', 'P_DPCRU', 'P_GAMMA', 'P_MUU', 'P_PATM',
+           'evaluate', 'evaluate_c', 'groot', 'pump_flow', 'relief_flow', 'state_scale',
+           'structure']
 
 # Inputs: the solenoid current I_s [A] (absolute, as the pump component's), load pressure
 # P_u [Pa], aperture xi_u [-], shaft frequency f_p [Hz].
@@ -64,8 +64,6 @@ U_I, U_PU, U_XI, U_FP, N_U = range(5)
 (Y_IS, Y_XC, Y_VC, Y_XA, Y_VA, Y_PA, Y_PL, Y_QP, Y_QA, Y_QL, Y_QLOAD, Y_QRELIEF, Y_PU,
  N_Y) = range(14)
 
-OK, FAIL_STEP, FAIL_NAN, FAIL_STEPS, FAIL_BUDGET = (ig.OK, ig.FAIL_STEP, ig.FAIL_NAN,
-                                                    ig.FAIL_STEPS, ig.FAIL_BUDGET)
 
 
 
@@ -141,33 +139,3 @@ def structure(p: np.ndarray, n: int) -> dict:
     freq = max(float(p[P_DITHF]), 1.0)
     return {'scale': state_scale(p, n), 'colors': colors, 'pattern': pattern,
             'timed': bool(p[P_DITHA] > 0.0), 'dt_time': 1.0e-7 / freq}
-
-
-def jacobian(t, x, u, p, f0, scale, J, work, ybuf):
-    """Forward-difference Jacobian ``df/dx`` of the plant into ``J`` (dense)."""
-    colors, pattern = ig.dense(x.shape[0])
-    ig.jacobian(evaluate_c.address, t, x, u, p, f0, scale, J, work, ybuf, colors, pattern)
-
-
-def structure_rows(P: np.ndarray, n: int) -> dict:
-    """:func:`structure` of several parameter rows stepped together: the scales of the
-    first, the time dependence of any."""
-    st = structure(P[0], n)
-    freq = max(float(np.max(P[:, P_DITHF])), 1.0)
-    st.update(timed=bool(np.any(P[:, P_DITHA] > 0.0)), dt_time=1.0e-7 / freq)
-    return st
-
-
-def run(X0, t0, dt, U, P, rtol, h_min, max_steps, decim, Y, X, stats, max_total,
-        own_jacobian=False):
-    """The stepper's :func:`~hydropump_sim.integrator.run` on the plant (rows of ``X0`` and
-    ``P`` are copies, see there)."""
-    m = ig.model(evaluate_c, structure_rows(P, X0.shape[1]))
-    return ig.run(m, X0, t0, dt, U, P, rtol, h_min, max_steps, decim, Y, X, stats, max_total,
-                  own_jacobian)
-
-
-def advance(t0, t1, X, u, P, h, rtol, h_min, max_steps, stats, own_jacobian=False):
-    """The stepper's :func:`~hydropump_sim.integrator.advance` on the plant."""
-    m = ig.model(evaluate_c, structure(P[0], X.shape[1]))
-    return ig.advance(m, t0, t1, X, u, P, h, rtol, h_min, max_steps, stats, own_jacobian, N_Y)
