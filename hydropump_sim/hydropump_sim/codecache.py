@@ -26,6 +26,7 @@ from pathlib import Path
 import stat
 import sys
 import tempfile
+import time
 from typing import Any
 
 from .errors import HydropumpError
@@ -136,9 +137,18 @@ def compile_module(code: str):
     else:
         raise CacheError(['no private, writable folder for the compiled circuit: set '
                           'HYDROPUMP_CACHE to a folder of your own'])
+    # numba's index of the module's cached code: none yet, it compiles now (once per
+    # structure, a few seconds whatever the size: see circuit._generate), and says so.
+    fresh = not any(path.parent.glob(f'__pycache__/{name}.*.nbi'))
+    if fresh:
+        print("compiling the circuit's equations (once per structure: a few seconds) ...",
+              file=sys.stderr, flush=True)
+    t0 = time.perf_counter()
     spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module
     spec.loader.exec_module(module)
+    if fresh:
+        print(f'compiled in {time.perf_counter() - t0:.1f} s', file=sys.stderr, flush=True)
     _MODULES[digest] = module
     return module

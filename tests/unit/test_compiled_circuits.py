@@ -1,7 +1,10 @@
 """How a circuit compiles and steps: a source that does not grow with its components, a
 rejected step retried on the same Jacobian, section IV's static forms of composite parts."""
 
+import os
 import re
+import subprocess
+import sys
 
 import numpy as np
 import yaml
@@ -80,3 +83,18 @@ def test_every_part_of_a_composite_can_be_made_static():
     simple = ex.made_static(list(gone))
     removed = {s for states in gone.values() for s in states}
     assert set(simple.states) == set(ex.states) - removed
+
+
+def test_a_circuits_first_compile_says_so_and_the_next_process_loads_it(tmp_path):
+    """A structure compiled for the first time says so on stderr, with how long it took;
+    the next process loads numba's cached code and is silent."""
+    code = ('from hydropump_sim.circuit import load_circuit\n'
+            f'load_circuit({str(CIRCUITS / "three_loads.yaml")!r}).evaluate_c\n')
+    env = dict(os.environ, HYDROPUMP_CACHE=str(tmp_path / 'cache'))
+    first, again = (subprocess.run([sys.executable, '-c', code], capture_output=True,
+                                   text=True, env=env, timeout=600) for _ in range(2))
+    assert first.returncode == 0 and again.returncode == 0, first.stderr + again.stderr
+    lines = first.stderr.splitlines()
+    assert lines[0].startswith("compiling the circuit's equations (once per structure")
+    assert re.fullmatch(r'compiled in \d+\.\d s', lines[1])
+    assert again.stderr == ''
