@@ -329,8 +329,10 @@ class Runner:
         with self._cv:
             if not math.isfinite(value):
                 self.stats['nan_commands'] += 1
+                # What the plant holds (the last command clamped to eq. 2, or the
+                # watchdog's safe current), not the last number received.
                 self._warn('nan', f'ignored non-finite current command {value!r}; holding '
-                                  f'{self._current:.4g} A')
+                                  f'{self._applied:.4g} A')
                 return
             lo, hi = self.params.I_limits
             if not lo <= value <= hi:
@@ -369,6 +371,9 @@ class Runner:
                 self.cfg = replace(self.cfg, {name: value})
                 if name == 'pause_at':
                     self._pause_armed = value
+                    if 0.0 < value < self.sim.t - 0.5 * self.sim.dt:
+                        self._log('warn', f'pause_at = {value:.6g} s has already passed (t = '
+                                          f'{self.sim.t:.6g} s): pausing now')
             self._cv.notify_all()
 
     def set_plant(self, sim: Simulator) -> None:

@@ -55,6 +55,13 @@ def cfg(**kw):
     return build(SimulatorConfig, kw)
 
 
+def still():
+    """A steady clock that stands still unless slept on: the watchdog never trips however
+    long a step takes (a first one compiles; a loaded machine)."""
+    clock = FakeClock()
+    return {'clock': clock, 'sleep': clock.sleep}
+
+
 def run(runner, sink, timeout=60.0):
     th = threading.Thread(target=runner.run, args=(sink,), daemon=True)
     th.start()
@@ -85,7 +92,7 @@ def test_currents_are_checked_against_eq_2(params):
 
 
 def test_free_run_matches_simulate_and_publishes_current_before_the_step(params):
-    r = Runner(Simulator(params), cfg(real_time_factor=0.0, initial_current=0.46))
+    r = Runner(Simulator(params), cfg(real_time_factor=0.0, initial_current=0.46), **still())
     r.command(0.54)
     sink = Sink(r, 201)
     run(r, sink)
@@ -105,7 +112,7 @@ def test_free_run_matches_simulate_and_publishes_current_before_the_step(params)
 
 def test_nan_commands_are_refused_and_out_of_range_clamped(params):
     logs = []
-    r = Runner(Simulator(params), cfg(real_time_factor=0.0),
+    r = Runner(Simulator(params), cfg(real_time_factor=0.0), **still(),
                log=lambda lvl, txt: logs.append((lvl, txt)))
     r.command(math.nan)
     assert r.stats['nan_commands'] == 1
@@ -122,6 +129,22 @@ def test_nan_commands_are_refused_and_out_of_range_clamped(params):
     r.command(-1.0e9)
     r._inputs()
     assert r.diagnostics()['applied_current'] == pytest.approx(lo)
+    # A NaN after that says what the plant holds (the clamped current), not the 1e9 asked.
+    r._warned.clear()
+    r.command(math.nan)
+    assert logs[-1][1].endswith(f'holding {lo:.4g} A')
+
+
+def test_a_pause_at_already_passed_says_it_pauses_now(params):
+    logs = []
+    r = Runner(Simulator(params), cfg(real_time_factor=0.0), **still(),
+               log=lambda lvl, txt: logs.append((lvl, txt)))
+    run(r, Sink(r, 20))
+    r.set_parameter('pause_at', 0.005)
+    assert logs[-1] == ('warn', 'pause_at = 0.005 s has already passed (t = 0.019 s): '
+                                'pausing now')
+    r.set_parameter('pause_at', 5.0)
+    assert logs[-1][1].startswith('pause_at = 0.005')   # a time ahead says nothing
 
 
 def test_command_watchdog_applies_the_safe_current_and_releases(params):
@@ -175,7 +198,7 @@ def test_lock_step_without_commands_times_out_and_counts(params):
 
 
 def test_pause_at_pauses_once_and_resumes(params):
-    r = Runner(Simulator(params), cfg(real_time_factor=0.0, pause_at=0.01))
+    r = Runner(Simulator(params), cfg(real_time_factor=0.0, pause_at=0.01), **still())
     sink = Sink(r, 10_000)
     th = threading.Thread(target=r.run, args=(sink,), daemon=True)
     th.start()
@@ -191,7 +214,7 @@ def test_pause_at_pauses_once_and_resumes(params):
 
 
 def test_reset_returns_to_equilibrium_and_time_runs_on(params):
-    r = Runner(Simulator(params), cfg(real_time_factor=0.0, initial_current=0.46))
+    r = Runner(Simulator(params), cfg(real_time_factor=0.0, initial_current=0.46), **still())
     x0 = r.sim.x.copy()
 
     def on_frame(sink, frame):
@@ -208,7 +231,7 @@ def test_reset_returns_to_equilibrium_and_time_runs_on(params):
 
 
 def test_live_inputs_apply_before_the_next_increment(params):
-    r = Runner(Simulator(params), cfg(real_time_factor=0.0))
+    r = Runner(Simulator(params), cfg(real_time_factor=0.0), **still())
 
     def on_frame(sink, frame):
         if len(sink.frames) == 3:
@@ -221,7 +244,7 @@ def test_live_inputs_apply_before_the_next_increment(params):
 
 def test_sensor_models_act_on_the_published_signals(params):
     prof = profile_from_dict({'sensors': {'line_flow': {'quantum': 1e-5}, 'seed': 3}})
-    r = Runner(Simulator(params), cfg(real_time_factor=0.0), profile=prof)
+    r = Runner(Simulator(params), cfg(real_time_factor=0.0), profile=prof, **still())
     sink = Sink(r, 20)
     run(r, sink)
     q = np.array([f.signals['line_flow'] for f in sink.frames])
