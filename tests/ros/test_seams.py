@@ -243,6 +243,20 @@ def test_help_prints_the_parameters_and_does_not_start(node):
     assert 'parameters (SI units):' in proc.stdout
 
 
+@pytest.mark.parametrize('node', ['simulator', 'controller', 'recorder'])
+def test_an_argument_that_is_not_a_ros_one_is_refused(node):
+    """A mistyped flag or a file given without -p, before --ros-args or after its --, exits
+    2 with one line naming it; the node does not start and run without it."""
+    for argv in (['--bogus', 'x.yaml', '--ros-args', '-p', 'use_sim_time:=false'],
+                 ['--ros-args', '-p', 'use_sim_time:=false', '--', 'extra']):
+        proc = subprocess.run([executable(node), *argv], capture_output=True, text=True,
+                              timeout=60)
+        assert proc.returncode == 2 and 'Traceback' not in proc.stderr
+        (err,) = proc.stderr.splitlines()
+        bad = ' '.join(argv[:2]) if argv[0] == '--bogus' else 'extra'
+        assert err.startswith(f'error: {node}: unexpected argument') and bad in err
+
+
 def test_a_second_simulator_in_the_namespace_refuses_having_published_nothing(
         tmp_path, nodes, test_node):
     """One simulator per namespace: a second one in the same namespace refuses before its

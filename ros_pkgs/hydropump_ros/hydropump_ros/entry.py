@@ -134,6 +134,16 @@ def run(factory: Callable[[], object], *, prog: str, doc: str,
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
+    from rclpy.utilities import remove_ros_args
+
+    # A node takes its settings as ROS parameters only: anything else on the command line
+    # (a mistyped flag, a file given without -p) is refused, not ignored.
+    extra = remove_ros_args(argv)[1:]
+    if extra:
+        print(f'error: {prog}: unexpected argument{"s" if len(extra) > 1 else ""} '
+              f'{" ".join(extra)}: parameters go after --ros-args, as -p name:=value or '
+              '--params-file FILE (see --help)', file=sys.stderr)
+        return 2
 
     from .bridge import StartupError
     stop = install_signal_handlers()
