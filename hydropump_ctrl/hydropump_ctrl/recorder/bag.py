@@ -234,7 +234,7 @@ class BagWriter:
     def open(self) -> BagWriter:
         """Create the folder and the MCAP file; raise :class:`BagError` with the reason."""
         exists = BagExistsError(f'{self.path}: exists already (a bag is never overwritten)')
-        if self.path.exists():
+        if unique_path(self.path) != self.path:
             raise exists
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -458,9 +458,12 @@ def unique_path(path: str | os.PathLike) -> Path:
     """``path``, or ``path_1``, ``path_2``, ... if it exists (a bag is never overwritten)."""
     path = Path(path)
     base, n = path, 1
-    while path.exists():
-        path = base.with_name(f'{base.name}_{n}')
-        n += 1
+    try:
+        while path.exists():
+            path = base.with_name(f'{base.name}_{n}')
+            n += 1
+    except OSError as exc:  # a name too long, a path through a file: exists() raises
+        raise BagError(f'{path}: cannot create the bag: {exc.strerror or exc}') from None
     return path
 
 
