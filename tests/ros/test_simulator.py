@@ -7,7 +7,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from hydropump_sim import load_params, simulate
+from hydropump_sim import IntegratorConfig, load_params, simulate
 
 from ..conftest import PUMP_YAML
 from .rosutil import (
@@ -100,7 +100,8 @@ def test_current_step_follows_the_plant_library(nodes, test_node):
     driver.kick()
     spin_until(test_node, lambda: driver.t >= 0.4, 60, 'simulation time 0.4 s')
     t, q = col.series('line_flow')
-    ref = simulate(p, 0.4, lambda tt: np.where(tt < 0.05, I0, I1))
+    # Offline, stepped as the node steps it (a step ending at every increment).
+    ref = simulate(p, 0.4, lambda tt: np.where(tt < 0.05, I0, I1), config=IntegratorConfig())
     k = np.searchsorted(ref.t, t[(t > 0.0) & (t <= 0.4)] - 1e-9)
     assert len(k) > 300
     q = q[(t > 0.0) & (t <= 0.4)]

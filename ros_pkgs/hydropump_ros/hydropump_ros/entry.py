@@ -138,7 +138,10 @@ def run(factory: Callable[[], object], *, prog: str, doc: str,
 
     # A node takes its settings as ROS parameters only: anything else on the command line
     # (a mistyped flag, a file given without -p) is refused, not ignored.
-    extra = remove_ros_args(argv)[1:]
+    try:
+        extra = remove_ros_args(argv)[1:]
+    except Exception:  # noqa: BLE001 - a bad ROS argument: rclpy.init below words it
+        extra = []
     if extra:
         print(f'error: {prog}: unexpected argument{"s" if len(extra) > 1 else ""} '
               f'{" ".join(extra)}: parameters go after --ros-args, as -p name:=value or '
