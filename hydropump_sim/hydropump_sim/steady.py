@@ -231,15 +231,16 @@ def _march(model: Model, x: np.ndarray, u: np.ndarray, p: np.ndarray, horizon: f
     early (``''`` if it did not)."""
     dt, chunk = 1.0e-3, 200
     U = np.tile(u, (chunk, 1))
-    Y = np.empty((1, chunk + 1, model.n_signals))
-    X = np.empty((1, chunk + 1, model.n_states))
+    # Only each chunk's end is wanted, and the inputs hold: steps free of the increments.
+    Y = np.empty((1, 2, model.n_signals))
+    X = np.empty((1, 2, model.n_states))
     stats = np.zeros(2, dtype=np.int64)
     stepper = model.stepper_model(timed=False)
     held = x[model.integrating].copy()
     t0 = time.perf_counter()
     for k in range(int(horizon / (dt * chunk))):
-        status, _ = ig.run(stepper, x[None].copy(), k * dt * chunk, dt, U, p[None], 1.0e-6,
-                           1.0e-12, 20000, 1, Y, X, stats, 2_000_000, False)
+        status, _ = ig.run_dense(stepper, x[None].copy(), k * dt * chunk, dt, U, p[None],
+                                 1.0e-6, 1.0e-12, 20000, chunk, Y, X, stats, 2_000_000, False)
         if status == ig.FAIL_BUDGET:
             return x, ('the integration toward it took more than 2e+06 solver steps (the '
                        'parameters make the model very stiff)')
