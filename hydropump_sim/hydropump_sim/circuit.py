@@ -57,7 +57,7 @@ from .components.base import Component, Expansion, PortSpec
 from .errors import HydropumpError
 from .jitcache import DIGEST
 from .params import Fluid, load_params, Params
-from .schema import build, flatten, fmt, ParamError, read_yaml, to_flat
+from .schema import build, flatten, fmt, ParamError, read_yaml, text_number_hint, to_flat
 from .system import Model, unknown
 
 
@@ -559,8 +559,9 @@ def build_circuit(doc: Any, source: str, base: Path, sets: dict[str, Any],
         lo, hi = circuit.input_ranges[k]
         if isinstance(value, bool) or not isinstance(value, (int, float)) \
                 or not lo <= float(value) <= hi:
+            hint = text_number_hint(value) if isinstance(value, str) else ''
             errors.append(f'{name} = {value!r}: expected a number in [{fmt(lo)}, {fmt(hi)}] '
-                          f'{circuit.input_units[k]}')
+                          f'{circuit.input_units[k]}{hint}')
             continue
         circuit.u0[k] = float(value)
     cap = float(circuit.pressure_caps(circuit.u0[None])[0])

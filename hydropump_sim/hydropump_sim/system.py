@@ -28,7 +28,7 @@ import numpy as np
 
 from .errors import HydropumpError, InputError
 from .files import replacing
-from .schema import closest_name
+from .schema import closest_name, text_number_hint
 
 
 class ModelError(HydropumpError, ValueError):
@@ -280,8 +280,9 @@ class Model:
             lo, hi = self.input_ranges[k]
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
                     or not lo <= v <= hi:
+                hint = text_number_hint(v) if isinstance(v, str) else ''
                 errors.append(f'{name} = {v!r}: expected a number in [{lo:.6g}, {hi:.6g}] '
-                              f'{self.input_units[k]}')
+                              f'{self.input_units[k]}{hint}')
                 continue
             u[k] = float(v)
         if errors:

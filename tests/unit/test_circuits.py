@@ -225,6 +225,8 @@ def test_continuity_balances_over_a_duty_cycle():
     ({'boom.command': 3.0}, ['boom.valve.command', '[-1, 1]']),
     ({'relief.p_full': 1.0e7}, ['relief', 'p_full', 'p_crack']),
     ({'bom.command': 0.5}, ['bom', 'did you mean boom']),
+    # YAML 1.1 (what --set and params files are read as) takes 6e4 for text: the fix said.
+    ({'boom.force': '6e4'}, ['boom.cylinder.force', 'YAML read it as text', '1.5e+9']),
 ])
 def test_a_bad_set_value_is_one_line_naming_it(sets, words):
     with pytest.raises(CircuitError) as info:
