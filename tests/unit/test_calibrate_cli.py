@@ -8,6 +8,7 @@ import sys
 import numpy as np
 import pytest
 
+from hydropump_ctrl.batch import cores
 from hydropump_ctrl.cli import main
 from hydropump_ctrl.recorder.bag import write_bag
 
@@ -52,6 +53,9 @@ def _run(capsys, *args):
     (lambda tmp, bag: ['--out', str(_copy(ROOT / 'config' / 'bench.yaml', tmp))],
      'not plant params'),
     (lambda tmp, bag: ['--workers', '0'], '--workers 0: expected a whole number from 1'),
+    # A local cluster of 1000 processes on this machine's cores is refused, not spawned.
+    (lambda tmp, bag: ['--workers', '1000'],
+     f'--workers 1000: expected a whole number from 1 to {2 * cores()}'),
     (lambda tmp, bag: ['--in-process', '--scheduler', 'tcp://127.0.0.1:9'], 'choose one'),
     (lambda tmp, bag: ['--fleet', str(tmp)], 'not both'),
 ])
