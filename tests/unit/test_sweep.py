@@ -155,6 +155,16 @@ BAD = {
               'outside the accepted range'),
     'zero': ({'distributions': {'n': 0, 'parameters': {'line.V_l': {'normal': 0.05}}}},
              'zero samples'),
+    # Too many runs to hold, said before a sample is drawn (each allocated to the OOM).
+    'grid': ({'grid': {'parameters': {k: {'from': 0.9, 'to': 1.1, 'n': 1000}
+                                      for k in ('actuator.mu_a', 'line.V_l', 'spool.K_a')},
+                       'relative': True}},
+             'grid: 1e+09 runs, more than the 1e+06 a sweep may hold'),
+    'sobol': ({'sobol': {'n': 2 ** 30, 'relative': True,
+                         'bounds': {'actuator.mu_a': [0.9, 1.1]}}},
+              'sobol.n = 1073741824: 1.07e+09 runs'),
+    'lhs': ({'latin_hypercube': {'n': 10 ** 9, 'bounds': {'actuator.mu_a': [1.0e-4, 2.0e-4]}}},
+            'latin_hypercube.n = 1000000000: 1e+09 runs'),
 }
 
 

@@ -163,12 +163,30 @@ def _num(v: Any, where: str, errors: list[str], *, positive: bool = False) -> fl
     return float(v)
 
 
+#: The most runs a sweep may hold: at 30 ms a run, eight hours on one core, and 1e6 rows of
+#: samples and results. Checked on the count before any sample is drawn (a grid of 1000^3,
+#: a Sobol base of 2^30 allocated until the machine stopped the process).
+MAX_RUNS = 1_000_000
+
+
+def _too_many(runs: int, what: str, errors: list[str]) -> bool:
+    """Whether ``runs`` is beyond :data:`MAX_RUNS` (an error line saying how many)."""
+    if runs <= MAX_RUNS:
+        return False
+    errors.append(f'{what}: {runs:.3g} runs, more than the {MAX_RUNS:.0e} a sweep may hold '
+                  f'(about {runs * 0.03 / 3600:.3g} h of one core at 30 ms a run): '
+                  'fewer samples, or several sweeps')
+    return True
+
+
 def _count(v: Any, where: str, errors: list[str]) -> int | None:
     if isinstance(v, bool) or not isinstance(v, int):
         errors.append(f'{where} = {v!r}: expected a whole number of samples')
         return None
     if v < 1:
         errors.append(f'{where} = {v}: zero samples; give at least 1')
+        return None
+    if _too_many(v, f'{where} = {v}', errors):
         return None
     return v
 
@@ -343,6 +361,8 @@ def _grid(block: Mapping, plant: Params, specs: dict, errors: list[str]):
             axes.append(vs)
     if errors or not axes:
         return tuple(names), None
+    if _too_many(math.prod(len(a) for a in axes), 'grid', errors):
+        return tuple(names), None
     mesh = np.meshgrid(*axes, indexing='ij')
     return tuple(names), np.column_stack([m.ravel() for m in mesh])
 
@@ -397,6 +417,9 @@ def _sobol(block: Mapping, plant, specs, errors):
     names, b = _bounds(block, 'sobol', plant, specs, errors)
     if errors or n is None or not names:
         return names, None, None
+    if _too_many(n * (len(names) + 2), f'sobol.n = {n} over {len(names)} parameters',
+                 errors):
+        return names, None, None
     from SALib.sample import sobol as salib_sobol
     problem = {'num_vars': len(names), 'names': list(names),
                'bounds': [[float(a), float(c)] for a, c in zip(*b)]}
@@ -420,6 +443,9 @@ def _morris(block: Mapping, plant, specs, errors):
     seed = _seed(block, 'morris', errors)
     names, b = _bounds(block, 'morris', plant, specs, errors)
     if errors or r is None or levels is None or not names:
+        return names, None, None, 4
+    if _too_many(r * (len(names) + 1), f'morris.r = {r} over {len(names)} parameters',
+                 errors):
         return names, None, None, 4
     from SALib.sample import morris as salib_morris
     problem = {'num_vars': len(names), 'names': list(names),
