@@ -60,3 +60,28 @@ def test_a_window_of_whole_dither_periods_cancels_the_dither():
         assert np.max(np.abs(out - (ramp - 0.2 * lag))[w:-w]) < 2e-3, f
         np.testing.assert_allclose(dither_free(t, y, f), out, rtol=0, atol=1e-15)
     assert np.array_equal(dither_free(t, ramp, 0.0), ramp)
+
+
+@pytest.mark.parametrize('n', [400, 20000])
+def test_fig6_draws_the_residual_when_a_bucket_holds_one_sample(n):
+    """Fig. 6's residual as an envelope of its samples: with fewer samples than buckets
+    (a 200 Hz record: one sample a bucket) it was a band of no height, and drew nothing;
+    now its edges follow the signal, whatever the rate."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    from hydropump_ctrl.ident.report import _draw_envelope
+    t = np.linspace(0.0, 20.0, n)
+    x = np.sin(t) + 0.1 * np.cos(37.0 * t)
+    fig, ax = plt.subplots()
+    _draw_envelope(ax, t, x)
+    lows, highs = (np.asarray(line.get_ydata()) for line in ax.lines)
+    plt.close(fig)
+    assert lows.size >= min(n, 2500) - 1 and np.all(lows <= highs)
+    # Every sample lies inside the drawn edges (one sample a bucket: on them).
+    k = int(np.ceil(n / 2500))
+    m = n // k * k
+    xb = x[:m].reshape(-1, k)
+    assert np.allclose(lows, xb.min(axis=1)) and np.allclose(highs, xb.max(axis=1))
+    assert np.ptp(lows) > 1.5        # the sine's swing is drawn, not a flat line
