@@ -62,3 +62,20 @@ def save_figure(fig, path: str | Path, what: str = 'figure', **kwargs) -> Path:
     with replacing(path, what) as tmp:
         fig.savefig(tmp, **kwargs)
     return Path(path)
+
+
+def refuse_foreign(path: str | Path, mark: str, what: str) -> None:
+    """Refuse to replace a file this suite did not write: one that exists and lacks
+    ``mark`` (what every such file of the suite holds in its first 4 KiB) is the user's,
+    and a report written into its folder must not take its place."""
+    path = Path(path)
+    try:
+        with open(path, 'rb') as f:
+            head = f.read(4096)
+    except FileNotFoundError:
+        return
+    except OSError as exc:
+        raise WriteError(f'cannot write the {what} {path}: {exc.strerror or exc}') from None
+    if mark.encode() not in head:
+        raise WriteError(f'{path} exists and is not a {what} this suite wrote: not replaced '
+                         '(write into another folder, or move it away)')

@@ -40,6 +40,12 @@ def _run(capsys, *args):
     return code, err
 
 
+def _mine(folder, name):
+    """``folder`` with a file of the user's own called ``name``."""
+    (folder / name).write_text('my own notes\n')
+    return folder
+
+
 @pytest.mark.parametrize('make, text', [
     (lambda tmp, bag: ['--out', str(bag / 'metadata.yaml')], 'lies inside the input'),
     (lambda tmp, bag: ['--params', str(tmp / 'start.yaml'), '--out', str(tmp / 'start.yaml')],
@@ -58,6 +64,11 @@ def _run(capsys, *args):
      f'--workers 1000: expected a whole number from 1 to {2 * cores()}'),
     (lambda tmp, bag: ['--in-process', '--scheduler', 'tcp://127.0.0.1:9'], 'choose one'),
     (lambda tmp, bag: ['--fleet', str(tmp)], 'not both'),
+    # A report folder holding the user's own report.md: refused before any calibration.
+    (lambda tmp, bag: ['--report', str(_mine(tmp, 'report.md'))],
+     'exists and is not a calibration report this suite wrote: not replaced'),
+    (lambda tmp, bag: ['--report', str(_mine(tmp, 'result.json'))],
+     'exists and is not a calibration result this suite wrote'),
 ])
 def test_bad_calibrate_options_get_one_line_and_nothing_is_written(bag, tmp_path, capsys,
                                                                   make, text):

@@ -80,6 +80,22 @@ def test_report_folder_and_progress_bar(bags, capsys, tmp_path):
     assert not list(out_dir.glob('fig5_*.png'))
 
 
+@pytest.mark.parametrize('name', ['report.md', 'result.json'])
+def test_a_folder_with_the_users_own_report_is_not_written_into(bags, capsys, tmp_path, name):
+    """A folder that holds a report.md or result.json the fit did not write: one line,
+    nothing replaced, no figure written; the fit's own files are replaced on a re-run."""
+    mine = tmp_path / name
+    mine.write_text('my own notes\n')
+    code, _, err = _run(capsys, bags[0], '--out', str(tmp_path), '--no-progress')
+    assert code == 2 and err.strip().count('\n') == 0, err
+    assert f'{mine} exists and is not a fit' in err and 'not replaced' in err
+    assert mine.read_text() == 'my own notes\n'
+    assert sorted(p.name for p in tmp_path.iterdir()) == [name]
+    mine.unlink()
+    for _ in range(2):
+        assert _run(capsys, bags[0], '--out', str(tmp_path), '--no-progress')[0] == 0
+
+
 def test_per_set_figures_on_request(bags, capsys, tmp_path):
     code, _, _ = _run(capsys, bags[0], '--out', str(tmp_path), '--plots-per-set',
                       '--no-progress')

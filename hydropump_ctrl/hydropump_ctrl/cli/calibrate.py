@@ -203,6 +203,7 @@ def _single(args) -> int:
         calibrate,
         CalibrationError,
         fit_table,
+        refuse_foreign_report,
         write_calibration_report,
         write_params,
     )
@@ -216,6 +217,7 @@ def _single(args) -> int:
     if args.report:
         protect_output(args.report, inputs, 'report folder')
     report = run_dir(args.report, 'calibrate')
+    refuse_foreign_report(report)
     out = output_file(Path(args.out) if args.out else report / 'calibrated.yaml',
                       PARAMS_SUFFIXES, 'params file', kind='plant params')
     base = _plant(plant, args.profile)

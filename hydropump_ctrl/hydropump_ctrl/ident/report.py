@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from hydropump_sim.files import save_figure, write_text
+from hydropump_sim.files import refuse_foreign, save_figure, write_text
 
 from .diagnostics import FLAG_TEXT, FopdtFit
 from .model import PAPER, PARAMS
@@ -435,8 +435,11 @@ def write_report(ident: Identification, out_dir, *, params=None, plots: bool = T
     ``fig6_<set>.png`` (whole record, up-step, error with its correlation tests).
     """
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     paths = {'json': out / 'result.json', 'markdown': out / 'report.md'}
+    # A folder that holds the user's own result.json or report.md: nothing written.
+    refuse_foreign(paths['json'], f'"schema": "{SCHEMA}"', 'fit result')
+    refuse_foreign(paths['markdown'], '# Identification of eq. 19', 'fit report')
+    out.mkdir(parents=True, exist_ok=True)
     write_text(paths['json'], to_json(ident) + '\n', 'result')
     figures: dict[str, list[str]] = {}
     if plots:

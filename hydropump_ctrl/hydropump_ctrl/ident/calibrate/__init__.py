@@ -62,6 +62,8 @@ from .start import start_values
 from .uncertainty import analyse, DETERMINED_REL_STD, interval, singular_directions
 from .writers import (
     fit_table,
+    refuse_foreign_report,
+    SCHEMA,
     write_calibration_report,
     write_params,
     write_text,
@@ -142,6 +144,7 @@ class Calibration:
 
     def to_dict(self) -> dict[str, Any]:
         return {
+            'schema': SCHEMA,
             'free': list(self.free),
             'parameters': {p.name: p.to_dict() for p in self.estimates},
             'tied': self.tied,
@@ -499,6 +502,7 @@ def validate(recordings: Sequence, params: Params, *, signals=None, fit_delays: 
 __all__ = ['Calibration', 'CalibrationError', 'DELAY_MAX', 'DELAY_MIN', 'DERIVED',
            'DETERMINED_REL_STD', 'Experiment', 'ParameterEstimate', 'Prior', 'calibrate',
            'check_free', 'delayed', 'experiment_from', 'fit_percent', 'fit_table',
-           'misfit_table', 'noise_level', 'params_with', 'parse_prior', 'simulate_experiment',
+           'misfit_table', 'noise_level', 'params_with', 'parse_prior', 'refuse_foreign_report',
+           'simulate_experiment',
            'tied_values', 'validate', 'write_calibration_report', 'write_params', 'write_text',
            'write_validation_report']

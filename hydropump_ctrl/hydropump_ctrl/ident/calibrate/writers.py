@@ -23,6 +23,9 @@ from hydropump_sim.schema import dump_ros_yaml, spec_map
 from .data import CalibrationError
 from .engine import DERIVED
 
+#: The kind and version of a calibration's result.json (its first key).
+SCHEMA = 'hydropump-calibration/1'
+
 # Display units of the compared signals: (scale from SI, unit).
 DISPLAY = {'line_flow': (6.0e4, 'L/min'), 'pump_flow': (6.0e4, 'L/min'),
            'load_flow': (6.0e4, 'L/min'), 'line_pressure': (1e-5, 'bar'),
@@ -192,9 +195,20 @@ def misfit_table(misfit: dict, before: dict | None = None) -> str:
     return _table(head, misfit_rows(misfit, before))
 
 
+def refuse_foreign_report(out: Path) -> None:
+    """A report folder that holds the user's own ``result.json`` or ``report.md`` (not a
+    calibration's) is refused, before anything is written."""
+    try:
+        files.refuse_foreign(out / 'result.json', f'"schema": "{SCHEMA}"', 'calibration result')
+        files.refuse_foreign(out / 'report.md', '# Calibration', 'calibration report')
+    except files.WriteError as exc:
+        raise CalibrationError(exc.lines) from None
+
+
 def write_calibration_report(cal, out: Path, *, plots: bool = True) -> Path:
     """``result.json``, ``report.md`` and the figures of a calibration into ``out``."""
     out = Path(out)
+    refuse_foreign_report(out)
     write_text(out / 'result.json', json.dumps(cal.to_dict(), indent=2), 'result')
     figs = []
     if plots:
