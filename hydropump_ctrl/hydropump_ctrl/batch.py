@@ -214,7 +214,8 @@ def open_client(address: str | None = None, workers: int | None = None):
     Raises
     ------
     SchedulerError
-        The scheduler cannot be reached within :data:`CONNECT_TIMEOUT`.
+        The scheduler cannot be reached within :data:`CONNECT_TIMEOUT`, or a local cluster
+        of more than twice this machine's cores is asked for.
     """
     import dask
     from dask.distributed import Client, LocalCluster
@@ -227,6 +228,12 @@ def open_client(address: str | None = None, workers: int | None = None):
             raise SchedulerError(f'cannot reach the Dask scheduler at {address} within '
                                  f'{CONNECT_TIMEOUT:g} s ({why})') from None
     workers = workers or cores()
+    if workers > 2 * cores():
+        # A local cluster's workers are processes of this machine: more than two a core only
+        # share the cores (and 1000 were spawned until the machine stopped them).
+        raise SchedulerError(f'--workers {workers}: a local cluster of at most {2 * cores()} '
+                             f'workers here (twice the {cores()} cores this process may use); '
+                             'a cluster of more machines: --scheduler ADDRESS')
     # Two of Dask's worker defaults cost this suite's tasks time and buy nothing here: the
     # sampling profiler walks the running task's stack every 10 ms, and a fixed malloc trim
     # threshold makes glibc hand memory back after every large array of a task thread
@@ -250,7 +257,8 @@ def open_executor(address: str | None = None, workers: int | None = None, *,
     Raises
     ------
     SchedulerError
-        The scheduler cannot be reached within :data:`CONNECT_TIMEOUT`.
+        The scheduler cannot be reached within :data:`CONNECT_TIMEOUT`, or a local cluster
+        of more than twice this machine's cores is asked for.
     """
     address = address or os.environ.get('DASK_SCHEDULER_ADDRESS') or None
     if address or workers:

@@ -61,7 +61,7 @@ def _mine(folder, name):
     (lambda tmp, bag: ['--workers', '0'], '--workers 0: expected a whole number from 1'),
     # A local cluster of 1000 processes on this machine's cores is refused, not spawned.
     (lambda tmp, bag: ['--workers', '1000'],
-     f'--workers 1000: expected a whole number from 1 to {2 * cores()}'),
+     f'--workers 1000: a local cluster of at most {2 * cores()} workers here'),
     (lambda tmp, bag: ['--in-process', '--scheduler', 'tcp://127.0.0.1:9'], 'choose one'),
     (lambda tmp, bag: ['--fleet', str(tmp)], 'not both'),
     # A report folder holding the user's own report.md: refused before any calibration.

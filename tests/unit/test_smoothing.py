@@ -71,11 +71,11 @@ def test_fig6_draws_the_residual_when_a_bucket_holds_one_sample(n):
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
-    from hydropump_ctrl.ident.report import _draw_envelope
+    from hydropump_ctrl.ident.report import draw_envelope
     t = np.linspace(0.0, 20.0, n)
     x = np.sin(t) + 0.1 * np.cos(37.0 * t)
     fig, ax = plt.subplots()
-    _draw_envelope(ax, t, x)
+    draw_envelope(ax, t, x)
     lows, highs = (np.asarray(line.get_ydata()) for line in ax.lines)
     plt.close(fig)
     assert lows.size >= min(n, 2500) - 1 and np.all(lows <= highs)

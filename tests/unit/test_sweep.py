@@ -193,6 +193,7 @@ def test_unwritable_out_and_unreachable_scheduler(tmp_path, capsys):
                      '--out', tmp_path / 'o', '--no-progress')
     assert time.monotonic() - t0 < 10.0
     assert code == 2 and len(err) == 1 and address in err[0], err
+    assert 'cannot reach the Dask scheduler' in err[0] and 'cannot write' not in err[0]
     assert not list((tmp_path / 'o' / 'runs').glob('*.json'))
 
 

@@ -193,14 +193,10 @@ def add_where_options(parser, *, scheduler: str, workers: str, in_process: str) 
     """Where the work of :mod:`hydropump_ctrl.batch` runs: ``--scheduler ADDRESS``, and
     either ``--workers N`` (a local cluster) or ``--in-process``; the help texts say what
     each default means for the command."""
-    from ..batch import cores
     parser.add_argument('--scheduler', metavar='ADDRESS', help=scheduler)
     where = parser.add_mutually_exclusive_group()
-    # A local cluster's workers are processes of this machine: more than two a core only
-    # share the cores (and 1000 spawned until the machine stopped them).
-    most = 2 * cores()
-    where.add_argument('--workers', type=int_in(1, most),
-                       help=f'{workers}; at most {most}, twice the cores this process may use')
+    where.add_argument('--workers', type=int_in(1, 1024),
+                       help=f'{workers}; at most twice the cores this process may use')
     where.add_argument('--in-process', action='store_true', help=in_process)
 
 

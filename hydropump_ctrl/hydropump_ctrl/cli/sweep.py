@@ -45,6 +45,7 @@ def cmd_sweep(args) -> int:
     """Run the ``sweep`` sub-command; user errors propagate as one-line exceptions."""
     from hydropump_sim.files import WriteError
 
+    from ..batch import SchedulerError
     from ..sweep import load_sweep, run_sweep
     from ..sweep.engine import prepare_out
 
@@ -57,6 +58,8 @@ def cmd_sweep(args) -> int:
                         workers=0 if args.in_process else args.workers,
                         batch=args.batch, progress=args.progress,
                         report=not args.no_report)
+    except SchedulerError:
+        raise   # a ConnectionError, so an OSError, but not the disk's: its own line
     except (OSError, WriteError) as exc:
         # A full disk, say: every run stored before is whole (each is renamed into place),
         # and the same command resumes from them.

@@ -262,7 +262,7 @@ def _envelope(t: np.ndarray, x: np.ndarray, n: int = MAX_POINTS):
     return tb, xb.min(axis=1), xb.max(axis=1)
 
 
-def _draw_envelope(ax, t: np.ndarray, x: np.ndarray) -> None:
+def draw_envelope(ax, t: np.ndarray, x: np.ndarray) -> None:
     """A noisy signal as its :func:`_envelope`, its edges stroked: where a bucket holds one
     sample (fewer samples than pixels, a 200 Hz record) the band has no height, and a fill
     alone drew nothing."""
@@ -328,7 +328,7 @@ def plot_fig5(fit: FopdtFit, path, simplified: np.ndarray | None = None) -> Path
 def plot_fig6(fit: FopdtFit, path) -> Path:
     """Fig. 6 style: estimation error, with its autocorrelation and input cross-correlation."""
     plt, fig, ax = _figure(2, 5.0)
-    _draw_envelope(ax[0], fit.t, fit.residual)
+    draw_envelope(ax[0], fit.t, fit.residual)
     ax[0].set_xlabel('time [s]')
     ax[0].set_ylabel('e_e = q_l,m - q_l,i [%]')
     ax[0].set_title(f'{fit.name}: estimation error (rms {fit.rmse:.3g} %, fit '
@@ -411,7 +411,7 @@ def plot_fig6_all(fits, path) -> Path:
     """Fig. 6 for a set of records: the estimation error of each set."""
     plt, fig, _, axes = _grid(len(fits), False)
     for ax, fit in zip(axes, fits):
-        _draw_envelope(ax, fit.t, fit.residual)
+        draw_envelope(ax, fit.t, fit.residual)
         ax.set_title(f'{fit.name}: e_e rms {fit.rmse:.3g} %, fit {fit.fit_percent:.1f} %',
                      fontsize=8)
         ax.tick_params(labelsize=7)
