@@ -69,14 +69,18 @@ def install(root: Path, prefix: Path) -> list[Path]:
                 dst.unlink()
             elif dst.is_dir():
                 shutil.rmtree(dst)
-            # A folder of links to the files, as colcon's --symlink-install makes it: the
+            # Folders of links to the files, as colcon's --symlink-install makes them: the
             # sources stay the one copy, and ros2 launch, which walks the share folder
-            # without following links to folders, finds the launch files.
-            dst.mkdir()
-            for f in sorted((src / sub).resolve().iterdir()):
+            # without following links to folders, finds the launch files; subfolders too
+            # (config/circuits, which the Fig. 1 launch file loads).
+            base = (src / sub).resolve()
+            for f in sorted(base.rglob('*')):
                 if f.is_file():
-                    (dst / f.name).symlink_to(f)
-                    written.append(dst / f.name)
+                    link = dst / f.relative_to(base)
+                    link.parent.mkdir(parents=True, exist_ok=True)
+                    link.symlink_to(f)
+                    written.append(link)
+            dst.mkdir(exist_ok=True)
         for exe in EXECUTABLES.get(pkg, ()):
             lib = prefix / 'lib' / pkg
             lib.mkdir(parents=True, exist_ok=True)
