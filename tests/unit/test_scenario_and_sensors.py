@@ -124,3 +124,29 @@ inputs:
         (line,) = exc.value.lines
         assert line.startswith(f'inputs.load_pressure.sine.frequency = {freq:g} Hz') and \
             '500 Hz' in line
+
+
+def test_the_shipped_scenario_runs_as_its_comments_say(tmp_path):
+    """config/scenarios/load_change.yaml through ``hydropump simulate``: at rest before each
+    change, the flow is the displacement asked times V_p f_p, and the orifice's drop follows
+    eq. 9, (q / xi)^2: the aperture from 0.5 to 0.6 takes it to (5/6)^2 of itself, the
+    load pressure's 30 bar fall leaves it as it was."""
+    from hydropump_ctrl.cli import main
+    from hydropump_sim import load_params
+    out = tmp_path / 'load_change.csv'
+    assert main(['simulate', str(ROOT / 'config' / 'scenarios' / 'load_change.yaml'),
+                 '--out', str(out)]) == 0
+    d = np.genfromtxt(out, delimiter=',', names=True)
+    cols = d.dtype.names
+    t, q, p_l, p_u = (d[c] for c in (cols[0], cols[10], cols[7], cols[13]))
+    q_max = load_params(ROOT / 'config' / 'pump.yaml').Q_max
+
+    def at(time):
+        return int(np.searchsorted(t, time))
+    assert q[at(0.45)] == pytest.approx(0.4 * q_max, rel=1e-3)
+    assert q[at(1.45)] == pytest.approx(0.6 * q_max, rel=1e-3)
+    drop = [p_l[at(s)] - p_u[at(s)] for s in (1.45, 2.45, 2.95)]
+    assert p_u[at(2.95)] == pytest.approx(p_u[at(2.45)] - 3.0e6)
+    assert drop[1] / drop[0] == pytest.approx((0.5 / 0.6) ** 2, rel=1e-3)
+    assert drop[2] == pytest.approx(drop[1], rel=1e-3)
+    assert (tmp_path / 'load_change.png').stat().st_size > 10_000
