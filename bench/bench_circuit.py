@@ -48,6 +48,7 @@ from hydropump_ctrl.experiments import excavator, fig1  # noqa: E402
 from hydropump_ctrl.experiments.circuit_loop import controller_config, hydromechanical, run_circuit  # noqa: E402
 from hydropump_sim import load_params, simulate, Simulator  # noqa: E402
 from hydropump_sim.circuit import load_circuit  # noqa: E402
+from hydropump_sim.files import replacing  # noqa: E402
 from hydropump_sim.params import default_params_path  # noqa: E402
 from hydropump_sim.reduction import singular_perturbation  # noqa: E402
 from hydropump_sim.scaling import current_for_displacement  # noqa: E402
@@ -131,7 +132,8 @@ def reference(model, duration, inputs, x0) -> dict:
           flush=True)
     out = {k: res[k] for k in judged(model)}
     CACHE.mkdir(exist_ok=True)
-    np.savez(path, **out)
+    with replacing(path, 'reference') as tmp:  # whole or not at all (an interrupted run)
+        np.savez(tmp, **out)
     return out
 
 

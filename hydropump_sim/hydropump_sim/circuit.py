@@ -559,7 +559,7 @@ def build_circuit(doc: Any, source: str, base: Path, sets: dict[str, Any],
         lo, hi = circuit.input_ranges[k]
         if isinstance(value, bool) or not isinstance(value, (int, float)) \
                 or not lo <= float(value) <= hi:
-            hint = text_number_hint(value) if isinstance(value, str) else ''
+            hint = text_number_hint(value)
             errors.append(f'{name} = {value!r}: expected a number in [{fmt(lo)}, {fmt(hi)}] '
                           f'{circuit.input_units[k]}{hint}')
             continue

@@ -83,22 +83,18 @@ def code(ps: PowerSignals, y0: int, table) -> list[str]:
     k = y0
     slot = {}
 
-    def total(idx, fixed=False, free=False):
+    def total(idx, nodes=(), sign='+'):
         nonlocal k
-        out.append('    s = 0.0')
-        out.append(f'    for i in {table(idx)}:')
-        out.append('        s += y[i]')
-        for nodes, sign in ((ps.fixed_nodes, '-') if fixed else (None, ''),
-                            (ps.free_nodes, '+') if free else (None, '')):
-            if nodes:
-                out.append(f'    for i in {table(nodes)}:')
-                out.append(f'        s {sign}= P[i] * Q[i]')
+        out.extend(['    s = 0.0', f'    for i in {table(idx)}:', '        s += y[i]'])
+        if nodes:  # each node's compression power, stored (free) or given (held)
+            out.extend([f'    for i in {table(nodes)}:', f'        s {sign}= P[i] * Q[i]'])
         out.append(f'    y[{k}] = s')
         k += 1
         return k - 1
 
+    nodes = {'supply': (ps.fixed_nodes, '-'), 'stored': (ps.free_nodes, '+')}
     for t in TERMS:
-        slot[t] = total(ps.terms[t], fixed=t == 'supply', free=t == 'stored')
+        slot[t] = total(ps.terms[t], *nodes.get(t, ((), '+')))
     for idx in ps.groups.values():
         total(idx)
     out.append(f'    y[{k}] = y[{slot["supply"]}] - y[{slot["work"]}] - y[{slot["stored"]}]'

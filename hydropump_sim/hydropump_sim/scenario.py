@@ -87,7 +87,7 @@ class Scenario:
 
 def _number(v: Any, where: str, errors: list[str]) -> float | None:
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        hint = text_number_hint(v) if isinstance(v, str) else ''
+        hint = text_number_hint(v)
         errors.append(f'{where} = {v!r}: expected a finite number{hint}')
         return None
     return float(v)

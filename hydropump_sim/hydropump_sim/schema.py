@@ -193,9 +193,11 @@ def with_unit(value: float, unit: str) -> str:
     return fmt(value) if unit in ('-', '') else f'{fmt(value)} {unit}'
 
 
-def text_number_hint(value: str) -> str:
+def text_number_hint(value: Any) -> str:
     """Why a number came as text, when it did: YAML 1.1 reads ``1.2e7`` (no dot, no
-    exponent sign) as a string."""
+    exponent sign) as a string (``''`` for anything else)."""
+    if not isinstance(value, str):
+        return ''
     try:
         float(value)
     except (TypeError, ValueError):

@@ -280,7 +280,7 @@ class Model:
             lo, hi = self.input_ranges[k]
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
                     or not lo <= v <= hi:
-                hint = text_number_hint(v) if isinstance(v, str) else ''
+                hint = text_number_hint(v)
                 errors.append(f'{name} = {v!r}: expected a number in [{lo:.6g}, {hi:.6g}] '
                               f'{self.input_units[k]}{hint}')
                 continue

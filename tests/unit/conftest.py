@@ -1,6 +1,8 @@
-"""Fixtures of the pure tests: the controller configuration and the bench sensor profile."""
+"""Fixtures of the pure tests: the controller configuration and the bench sensor profile;
+a circuit file written from its components."""
 
 import pytest
+import yaml
 
 from ..conftest import ROOT
 
@@ -15,3 +17,12 @@ def cfg(params):
 def bench():
     from hydropump_sim.sensors import load_profile
     return load_profile(ROOT / 'config' / 'bench.yaml')
+
+
+def write_circuit(folder, name: str, fluid: dict, components: dict):
+    """A circuit file ``<folder>/<name>.yaml`` of ``components`` (in their order) and
+    ``fluid``; its path."""
+    path = folder / f'{name}.yaml'
+    path.write_text(yaml.safe_dump({'name': name, 'fluid': fluid, 'components': components},
+                                   sort_keys=False))
+    return path

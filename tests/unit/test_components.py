@@ -13,11 +13,12 @@ import math
 import numpy as np
 import pytest
 from scipy.optimize import brentq
-import yaml
 
 from hydropump_sim.circuit import CircuitError, load_circuit
 from hydropump_sim.simulate import simulate
 from hydropump_sim.steady import equilibrium
+
+from .conftest import write_circuit
 
 RHO, BETA = 870.0, 1.6e9
 FLUID = dict(rho=RHO, beta=BETA, nu=3.2e-5, alpha_air=0.0, p_atm=1.013e5, P_T=0.0)
@@ -119,16 +120,9 @@ BENCH = {
 }
 
 
-def write(folder, components, name='bench'):
-    path = folder / f'{name}.yaml'
-    path.write_text(yaml.safe_dump({'name': name, 'fluid': FLUID, 'components': components},
-                                   sort_keys=False))
-    return path
-
-
 @pytest.fixture(scope='module')
 def bench(tmp_path_factory):
-    return load_circuit(write(tmp_path_factory.mktemp('bench'), BENCH))
+    return load_circuit(write_circuit(tmp_path_factory.mktemp('bench'), 'bench', FLUID, BENCH))
 
 
 @pytest.fixture(scope='module')
@@ -390,7 +384,7 @@ def test_circuit_errors(tmp_path, change, names):
     component, the port or the node."""
     comps = copy.deepcopy({**MINI, **change})
     with pytest.raises(CircuitError) as info:
-        load_circuit(write(tmp_path, comps, 'bad'))
+        load_circuit(write_circuit(tmp_path, 'bad', FLUID, comps))
     lines = info.value.lines
     assert lines and all('\n' not in ln for ln in lines)
     assert any(all(n in ln for n in names) for ln in lines), lines

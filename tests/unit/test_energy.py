@@ -16,7 +16,6 @@ import math
 
 import numpy as np
 import pytest
-import yaml
 
 from hydropump_sim import energy, invariants
 from hydropump_sim.circuit import load_circuit
@@ -25,6 +24,7 @@ from hydropump_sim.simulate import simulate
 from hydropump_sim.steady import equilibrium
 
 from ..conftest import ROOT
+from .conftest import write_circuit
 
 CIRCUITS = ROOT / 'config' / 'circuits'
 FLUID = dict(rho=870.0, beta=1.6e9, nu=3.2e-5, alpha_air=0.0, p_atm=1.013e5, P_T=0.0)
@@ -59,9 +59,7 @@ RIG = {
 
 @pytest.fixture(scope='module')
 def rig(tmp_path_factory):
-    path = tmp_path_factory.mktemp('energy') / 'rig.yaml'
-    path.write_text(yaml.safe_dump({'name': 'rig', 'fluid': FLUID, 'components': RIG}))
-    return load_circuit(path)
+    return load_circuit(write_circuit(tmp_path_factory.mktemp('energy'), 'rig', FLUID, RIG))
 
 
 def _runs(rig):

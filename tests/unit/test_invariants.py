@@ -22,6 +22,7 @@ from hydropump_sim.simulate import simulate
 from hydropump_sim.steady import equilibrium
 
 from ..conftest import ROOT
+from .conftest import write_circuit
 
 FLUID = dict(rho=870.0, beta=1.6e9, nu=3.2e-5, alpha_air=0.0, p_atm=1.013e5, P_T=0.0)
 BENCH = {
@@ -39,9 +40,7 @@ BENCH = {
 
 @pytest.fixture(scope='module')
 def bench(tmp_path_factory):
-    path = tmp_path_factory.mktemp('inv') / 'bench.yaml'
-    path.write_text(yaml.safe_dump({'name': 'inv', 'fluid': FLUID, 'components': BENCH}))
-    return load_circuit(path)
+    return load_circuit(write_circuit(tmp_path_factory.mktemp('inv'), 'inv', FLUID, BENCH))
 
 
 def start(bench, trapped: float):
@@ -88,8 +87,7 @@ def test_the_checker_catches_a_component_making_energy(bench):
 
 
 def test_the_command_line_check(tmp_path):
-    path = tmp_path / 'c.yaml'
-    path.write_text(yaml.safe_dump({'name': 'inv', 'fluid': FLUID, 'components': BENCH}))
+    path = write_circuit(tmp_path, 'inv', FLUID, BENCH)
     ok = subprocess.run([sys.executable, '-m', 'hydropump_ctrl.cli', 'circuit', str(path),
                          '--duration', '0.05', '--control', 'open', '--check'],
                         capture_output=True, text=True, timeout=600)

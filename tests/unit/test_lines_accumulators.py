@@ -18,11 +18,12 @@ import math
 
 import numpy as np
 import pytest
-import yaml
 
 from hydropump_sim.circuit import CircuitError, load_circuit
 from hydropump_sim.simulate import simulate
 from hydropump_sim.steady import equilibrium
+
+from .conftest import write_circuit
 
 RHO, BETA, NU, P_ATM = 870.0, 1.6e9, 1.5e-5, 1.013e5
 FLUID = dict(rho=RHO, beta=BETA, nu=NU, alpha_air=0.0, p_atm=P_ATM, P_T=0.0)
@@ -69,16 +70,9 @@ ACC['ceiling'] = {'type': 'relief', 'ports': {'in': 'iso_m', 'out': 'tank'}, 'p_
                   'p_full': 1.9e7, 'q_full': 1.0e-3}
 
 
-def write(folder, components, name):
-    path = folder / f'{name}.yaml'
-    path.write_text(yaml.safe_dump({'name': name, 'fluid': FLUID, 'components': components},
-                                   sort_keys=False))
-    return path
-
-
 @pytest.fixture(scope='module')
 def hose_path(tmp_path_factory):
-    return write(tmp_path_factory.mktemp('hose'), HOSE, 'hose_bench')
+    return write_circuit(tmp_path_factory.mktemp('hose'), 'hose_bench', FLUID, HOSE)
 
 
 @pytest.fixture(scope='module')
@@ -88,7 +82,7 @@ def hose_bench(hose_path):
 
 @pytest.fixture(scope='module')
 def acc_path(tmp_path_factory):
-    return write(tmp_path_factory.mktemp('acc'), ACC, 'acc_bench')
+    return write_circuit(tmp_path_factory.mktemp('acc'), 'acc_bench', FLUID, ACC)
 
 
 @pytest.fixture(scope='module')

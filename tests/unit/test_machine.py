@@ -32,6 +32,7 @@ from hydropump_sim.simulate import simulate
 from hydropump_sim.steady import equilibrium
 
 from ..conftest import PUMP_YAML, ROOT
+from .conftest import write_circuit
 
 RHO, BETA = 870.0, 1.6e9
 FLUID = dict(rho=RHO, beta=BETA, nu=3.2e-5, alpha_air=0.0, p_atm=1.013e5, P_T=0.0)
@@ -83,9 +84,7 @@ RIG = {
 
 @pytest.fixture(scope='module')
 def rig(tmp_path_factory):
-    path = tmp_path_factory.mktemp('machine') / 'rig.yaml'
-    path.write_text(yaml.safe_dump({'name': 'rig', 'fluid': FLUID, 'components': RIG}))
-    return load_circuit(path)
+    return load_circuit(write_circuit(tmp_path_factory.mktemp('machine'), 'rig', FLUID, RIG))
 
 
 def stribeck(v):
@@ -208,9 +207,7 @@ MINI = {
      ['h.L = 0']),
 ])
 def test_a_bad_machine_is_one_line_naming_the_component(tmp_path, extra, words):
-    path = tmp_path / 'bad.yaml'
-    path.write_text(yaml.safe_dump({'name': 'bad', 'fluid': FLUID,
-                                    'components': {**MINI, **extra}}))
+    path = write_circuit(tmp_path, 'bad', FLUID, {**MINI, **extra})
     with pytest.raises(CircuitError) as err:
         load_circuit(path, compile=False)
     lines = err.value.lines

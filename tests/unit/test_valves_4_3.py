@@ -14,11 +14,12 @@ import math
 import numpy as np
 import pytest
 from scipy.optimize import brentq
-import yaml
 
 from hydropump_sim.circuit import CircuitError, load_circuit
 from hydropump_sim.simulate import simulate
 from hydropump_sim.steady import equilibrium
+
+from .conftest import write_circuit
 
 RHO, BETA = 870.0, 1.6e9
 FLUID = dict(rho=RHO, beta=BETA, nu=3.2e-5, alpha_air=0.0, p_atm=1.013e5, P_T=0.0)
@@ -141,10 +142,7 @@ def cb_flow(PL, PV, s):
 
 @pytest.fixture(scope='module')
 def rig(tmp_path_factory):
-    path = tmp_path_factory.mktemp('valves') / 'valves.yaml'
-    path.write_text(yaml.safe_dump({'name': 'valves', 'fluid': FLUID, 'components': RIG},
-                                   sort_keys=False))
-    return load_circuit(path)
+    return load_circuit(write_circuit(tmp_path_factory.mktemp('valves'), 'valves', FLUID, RIG))
 
 
 @pytest.fixture(scope='module')

@@ -325,6 +325,19 @@ def _start_fig1(pool, run_dir: Path, profile_path: Path, quick: bool):
     return exps, future
 
 
+def _joined(beside, label: str, walls: dict, starts: dict) -> list:
+    """The experiments of a graph run beside the paper's (``(experiments, future)`` or
+    ``None``), once it has ended: its stages' wall times join ``walls`` under ``label``, its
+    start instants join ``starts``."""
+    if beside is None:
+        return []
+    experiments, future = beside
+    own_walls, own_starts = future.result()
+    walls.update({f'{label}{k}': v for k, v in own_walls.items()})
+    starts.update(own_starts)
+    return experiments
+
+
 def _start_excavator(pool, run_dir: Path, profile_path: Path):
     """Submit the excavator's duty cycle's graph to ``pool``: its experiment and the future
     of :func:`run_graph`. The simulator runs config/circuits/excavator.yaml (its plant
@@ -382,18 +395,8 @@ def run(args, run_dir: Path) -> int:
             walls, starts = _run_jobs(stages, run_dir, profile_path, args.jobs)
         else:
             walls, starts = run_graph(stages, run_dir, run_dir / 'logs', profile_path)
-        fig1 = []
-        if duty is not None:
-            fig1, future = duty
-            fig1_walls, fig1_starts = future.result()
-            walls.update({f'{BESIDE}{k}': v for k, v in fig1_walls.items()})
-            starts.update(fig1_starts)
-        excavator = []
-        if dig is not None:
-            excavator, future = dig
-            dig_walls, dig_starts = future.result()
-            walls.update({f'{BESIDE_EXCAVATOR}{k}': v for k, v in dig_walls.items()})
-            starts.update(dig_starts)
+        fig1 = _joined(duty, BESIDE, walls, starts)
+        excavator = _joined(dig, BESIDE_EXCAVATOR, walls, starts)
         # 3. Fitting, 4. model analysis, 5. report: no graph needed.
         page = analyse_campaign(run_dir, run_dir / 'bags', params, profile, idents, loops,
                                 walls, t_all, starts, echo=_progress, pool=pool,
