@@ -142,7 +142,7 @@ def test_the_four_bench_sensors_recover_a_pump_made_elsewhere(bench_cal, pump, h
         assert p.ci95[0] < p.value < p.ci95[1]
     # The flow meter's 12.4 ms lies between samples; the pressure transducers have none.
     assert abs(cal.delays['all']['line_flow'] - FLOW_DELAY) < 2e-4
-    assert cal.delays['all']['line_pressure'] < 2e-4
+    assert abs(cal.delays['all']['line_pressure']) < 2e-4
     # Fitted to the noise: no signal's residual is far above its noise level.
     assert all(m['ratio'] < 1.5 for per in cal.misfit.values() for m in per.values())
     # The calibrated file predicts the run nobody calibrated on; the start does not.
@@ -317,8 +317,9 @@ def test_a_prior_holds_a_weak_parameter_and_is_reported(weak, pump, base):
     cal = calibrate(recs, base, free, signals=BENCH, priors=[prior])
     p = cal.estimate('line.V_l')
     assert p.prior and 'prior' in p.prior
-    # The prior bounds what the data leave open (6.4 % without it, earlier).
-    assert abs(p.value / tv - 1) < 0.03 and p.relative_stderr < 0.03
+    # The prior bounds what the data leave open (6.4 % without it, earlier); within two of
+    # its standard deviations of its centre.
+    assert abs(p.value / (1.01 * tv) - 1) < 0.04 and p.relative_stderr < 0.03
     assert p.ci95[0] <= tv <= p.ci95[1]
     assert cal.to_dict()['priors'] == [prior.text]
 

@@ -22,9 +22,12 @@ Both check every bag against the params file before any simulation (a current in
 pressure in bar or gauge, a flow in L/min, the wrong message type, two runs in one bag, too
 few samples: one ``error:`` line each, exit code 2); a fleet checks every bag of every pump
 first, and an unwritable report folder or a scheduler that does not answer within 5 s ends
-in one line before any calibration. A calibration that fits a signal worse than its mean (fit
-% below zero) writes its report but no params file, and exits with 2; in a fleet that pump
-is a failed row, and the command exits with 1 when any pump failed.
+in one line before any calibration. A calibration writes its params file whenever it fits the
+bags better than the start, its flags in the file's header and on stderr; where a signal is
+not fitted to its noise, it names the parameters left fixed that would explain the most
+(``what the model may lack``). One that does not improve on the start writes its report but
+no params file, and exits with 2; in a fleet that pump is a failed row, and the command exits
+with 1 when any pump failed.
 """
 
 from __future__ import annotations
@@ -78,8 +81,13 @@ def _read(args, params, bags=None):
 
 def _negative_fits(fit: dict) -> list[tuple[str, str, float]]:
     """``(recording, signal, fit %)`` of every fit below zero, worst first."""
-    return sorted(((e, s, v) for e, per in fit.items() for s, v in per.items() if v < 0.0),
-                  key=lambda x: x[2])
+    return sorted(((e, s, v) for e, per in fit.items() for s, v in per.items()
+                   if v is not None and v < 0.0), key=lambda x: x[2])
+
+
+def _not_improved(cal) -> str:
+    return (f'the calibrated model fits the bags no better than the start (mean weighted '
+            f'squared residual {cal.cost:.4g}, at the start {cal.cost_start:.4g})')
 
 
 def _common(p, bags: str = '+') -> None:
@@ -234,16 +242,12 @@ def _single(args) -> int:
     if show:
         print(file=sys.stderr)
     suggest(cal)
-    bad = _negative_fits(cal.fit)
-    if bad:
-        # A model worse than the signals' means is no calibration: the report says why, and
-        # no params file is left for a simulator to load.
+    if not cal.improved:
+        # No better than the start is no calibration: the report says why, and no params
+        # file is left for a simulator to load. (Units were checked with the bags.)
         write_calibration_report(cal, report, plots=not args.no_plots)
-        e, s, v = bad[0]
-        raise CalibrationError(
-            f'the calibrated model fits {len(bad)} signal(s) worse than their mean (fit % '
-            f'below zero; worst {s} of {e}: {v:.4g} %): no params file written; check the '
-            f'units of the bags and the params file, see {report}/report.md')
+        raise CalibrationError(f'{_not_improved(cal)}: no params file written; see '
+                               f'{report}/report.md')
     write_params(cal, out, [f'start: {plant}'] + ([f'layered with the plant settings of '
                                                    f'{args.profile}'] if args.profile else []))
     write_calibration_report(cal, report, plots=not args.no_plots)
@@ -260,6 +264,12 @@ def _single(args) -> int:
         print(f'  {n:<{w}}  tied: {v:.6g}')
     print('\nfit % (start -> calibrated):')
     print(fit_table(cal.fit, cal.fit_before))
+    if cal.timing:
+        print(f'\ntiming: {cal.timing}')
+    if cal.missing:
+        print('\nwhat the model may lack (signals not fitted to their noise):')
+        for k, c in enumerate(cal.missing):
+            print(f'  {k + 1}. {c["text"]}')
     for f in cal.flags:
         print(f'warning: {f}', file=sys.stderr)
     print(f'\nwrote {out} and {report}/report.md')
@@ -310,22 +320,20 @@ def _fleet(args) -> int:
     done = []
 
     def store(res):
-        # As each pump's result arrives: its params file (not when it fits a signal worse
-        # than its mean) and its report.
+        # As each pump's result arrives: its params file (not when it fits no better than
+        # the start) and its report.
         cal = res.calibration
         if cal is not None:
             suggest(cal)
-            bad = _negative_fits(cal.fit)
             folder = outs[res.name].parent
             try:
                 folder.mkdir(parents=True, exist_ok=True)
             except OSError as exc:
                 raise UsageError(f'cannot create the folder of {res.name} {folder}: '
                                  f'{exc.strerror or exc}') from None
-            if bad:
-                e, s, v = bad[0]
-                res.reason = (f'fits {len(bad)} signal(s) worse than their mean (worst {s} of '
-                              f'{e}: {v:.4g} %): no params file written')
+            if not cal.improved:
+                res.reason = f'{_not_improved(cal)}: no params file written'
+
             else:
                 res.files.append(write_params(cal, outs[res.name], [
                     *header, f'pump {res.name} of the fleet {args.fleet}']))

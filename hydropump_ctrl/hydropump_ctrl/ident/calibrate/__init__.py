@@ -14,6 +14,8 @@ Chosen plant parameters (dotted names of ``config/pump.yaml``) are estimated by 
   with the measurement delays and offsets solved inside (variable projection);
 - :mod:`.start` - start values in closed form where the data allow (eqs. 6, 9, 14);
 - :mod:`.uncertainty` - standard errors, 95 % intervals, weak and singular directions;
+- :mod:`.lacks` - what the model lacks: the fixed parameters ranked by how much of the
+  misfit each would explain if freed, and the start of a free parameter at zero;
 - :mod:`.writers` - the calibrated params file, the JSON result, the report and figures;
 - :mod:`.fleet` - many pumps, each calibrated on its own bags as one task, and one table of
   every pump's parameters and standard errors;
@@ -48,15 +50,17 @@ from .data import (
     noise_level,
 )
 from .engine import DERIVED, Engine, params_with, simulate_experiment, tied_values
+from .lacks import missing, zero_starts
 from .problem import (
     check_free,
     Coordinates,
     DELAY_MAX,
-    DELAY_MIN,
     delayed,
+    LEAD_SAMPLES,
     parse_prior,
     Prior,
     Problem,
+    timing_convention,
 )
 from .start import start_values
 from .uncertainty import analyse, DETERMINED_REL_STD, interval, singular_directions
@@ -132,6 +136,10 @@ class Calibration:
     n_simulations: int
     wall_time: float
     cost: float
+    cost_start: float = math.nan              # the same at the start: did the fit improve?
+    # The fixed parameters that would explain most of a misfit beyond the noise (.lacks).
+    missing: list[dict] = field(default_factory=list)
+    timing: str = ''                          # the bench's timing convention, in words
     predictions: list[dict[str, np.ndarray]] = field(default_factory=list, repr=False)
     predictions_before: list[dict[str, np.ndarray]] = field(default_factory=list, repr=False)
     experiments: list[Experiment] = field(default_factory=list, repr=False)
@@ -157,8 +165,17 @@ class Calibration:
             'delays_s': self.delays, 'offsets': self.offsets, 'noise_sigma': self.sigma,
             'flags': self.flags, 'notes': self.notes, 'bags': self.sources,
             'method': self.method, 'n_simulations': self.n_simulations,
-            'wall_time_s': self.wall_time, 'cost': self.cost,
+            'wall_time_s': self.wall_time, 'cost': self.cost, 'cost_start': _num(self.cost_start),
+            'missing_effects': [{k: v for k, v in c.items() if k != 'signals'}
+                                | {'noise_ratio': {s: list(v) for s, v in c['signals'].items()}}
+                                for c in self.missing],
+            'timing': self.timing,
         }
+
+    @property
+    def improved(self) -> bool:
+        """Does the calibrated model fit the data better than the start?"""
+        return bool(self.cost < self.cost_start) if math.isfinite(self.cost_start) else True
 
 
 def fit_percent(y: np.ndarray, yhat: np.ndarray) -> float:
@@ -169,9 +186,22 @@ def fit_percent(y: np.ndarray, yhat: np.ndarray) -> float:
     return float(100.0 * (1.0 - np.linalg.norm(y - yhat) / den)) if den > 0 else float('nan')
 
 
-def _fits(exps, preds) -> dict[str, dict[str, float]]:
-    return {e.name: {s: round(fit_percent(e.measured[s], p[s]), 3) for s in e.measured}
-            for e, p in zip(exps, preds)}
+# A signal that moves less than this many times its noise in a recording (a flow at a held
+# current while the load pressure steps) has no variance for a fit % to measure: its fit %
+# is reported as not meaningful (None), never as a failure.
+MEANINGFUL_SPREAD = 3.0
+
+
+def _fits(exps, preds) -> dict[str, dict[str, float | None]]:
+    out = {}
+    for e, p in zip(exps, preds):
+        per = {}
+        for s, y in e.measured.items():
+            spread = float(np.nanstd(y)) if np.isfinite(y).any() else 0.0
+            per[s] = round(fit_percent(y, p[s]), 3) \
+                if spread > MEANINGFUL_SPREAD * e.sigma[s] else None
+        out[e.name] = per
+    return out
 
 
 # A signal whose residual rms exceeds its noise level by this factor is not fitted: the model
@@ -300,6 +330,8 @@ def calibrate(recordings: Sequence, base: Params, free: Sequence[str], *,
         try:
             prob.evaluate(z0, search=True)
             before = prob.predictions(z0)
+            r_start = prob.data_residuals(z0)
+            cost_start = float(np.sum(r_start ** 2) / max(r_start.size, 1))
         except HydropumpError as exc:
             raise CalibrationError(f'the start parameters do not simulate: {exc}') from None
         tried = ['the start']
@@ -319,6 +351,7 @@ def calibrate(recordings: Sequence, base: Params, free: Sequence[str], *,
                     tried = ['the closed-form start (' + ', '.join(why) + ')']
                 else:
                     prob.evaluate(z0, search=True)
+        z_start = _from_zero(prob, z_start)
         # A parameter no signal of any recording depends on cannot be informed.
         Jp0, _ = prob.sensitivities(z_start)
         dead = [n for j, n in enumerate(free) if not np.any(Jp0[:, j])]
@@ -364,10 +397,35 @@ def calibrate(recordings: Sequence, base: Params, free: Sequence[str], *,
             method += '; a singular direction held at the start'
         r = prob.data_residuals(z)
         unc = analyse(Jr, r, free, prob.row_groups(), J_prior, held)
-        return _result(prob, base, free, coords, theta0, z, unc, before, notes, recordings,
-                       method, t_wall)
+        cal = _result(prob, base, free, coords, theta0, z, unc, before, notes, recordings,
+                      method, t_wall)
+        cal.cost_start = cost_start
+        if any(m['ratio'] > MISFIT_RATIO for per in cal.misfit.values() for m in per.values()):
+            recorded = ['load_pressure'] if any(e.load_pressure is not None for e in exps) \
+                else []
+            cal.missing = missing(prob, z, cal.params, free, recorded)
+        return cal
     finally:
         engine.close()
+
+
+def _from_zero(prob: Problem, z: np.ndarray) -> np.ndarray:
+    """``z`` with the free parameters at zero started where the data suggest
+    (:func:`.lacks.zero_starts`), when that fits better or a column is zero there."""
+    zs = zero_starts(prob, z)
+    if np.array_equal(zs, z):
+        return z
+    dead = not np.all(np.any(prob.sensitivities(z)[0], axis=0))
+    c0 = float(np.sum(prob.residuals(z) ** 2))
+    try:
+        prob.evaluate(zs, search=True)
+        c1 = float(np.sum(prob.residuals(zs) ** 2))
+    except HydropumpError:
+        c1 = math.inf
+    if c1 < c0 or (dead and math.isfinite(c1)):
+        return zs
+    prob.evaluate(z, search=True)
+    return z
 
 
 def _projected(prob: Problem, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -429,9 +487,14 @@ def _result(prob, base, free, coords, theta0, z, unc, before, notes, recordings,
         if reason:
             flags.append(f'{n}: {reason}')
     for (i, s), (d, _) in nuis.items():
+        where = '' if i is None else exps[i].name + ': '
         if prob.fit_delays and d >= DELAY_MAX - 1e-6:
-            flags.append(f'{"" if i is None else exps[i].name + ": "}the delay of {s} is '
-                         f'on its upper bound ({1e3 * d:.3g} ms): the signal may lag more')
+            flags.append(f'{where}the delay of {s} is on its upper bound ({1e3 * d:.3g} ms): '
+                         'the signal may lag more')
+        elif prob.fit_delays and d <= prob.delay_min + 1e-9:
+            flags.append(f'{where}{s} leads the current by the most allowed ({-1e3 * d:.3g} '
+                         f"ms, {LEAD_SAMPLES} samples): its stamps and the current's may be "
+                         'further apart')
     misfit = misfit_table(exps, after)
     for name, per in misfit.items():
         for s, m in per.items():
@@ -443,17 +506,19 @@ def _result(prob, base, free, coords, theta0, z, unc, before, notes, recordings,
     fits = _fits(exps, after)
     for name, per in fits.items():
         for s, v in per.items():
-            if v < 0.0:
+            if v is not None and v < 0.0:
                 flags.append(f'{name}: {s} fit {v:.4g} % is below zero: the model predicts it '
-                             'worse than its mean (wrong units, params file or bag?)')
+                             'worse than its mean (the units were checked: see the misfit '
+                             'table and what the model may lack)')
     delays, offs = _nuisance_tables(prob, nuis)
     r = prob.residuals(z)
+    dt = max(e.dt for e in exps)
     return Calibration(
         params=params, start=base, estimates=estimates, correlation=unc.correlation,
         singular_values=unc.singular_values, weak=unc.weak, held=unc.held,
         fit=fits, fit_before=_fits(exps, before), misfit=misfit,
         delays=delays, offsets=offs, sigma={e.name: dict(e.sigma) for e in exps},
-        flags=flags, notes=notes,
+        flags=flags, notes=notes, timing=timing_convention(delays, dt),
         sources=[str(getattr(rec, 'source', '') or getattr(rec, 'name', ''))
                  for rec in recordings],
         free=free, tied=tied_values(params.flat(), free), priors=list(prob.priors),
@@ -499,7 +564,7 @@ def validate(recordings: Sequence, params: Params, *, signals=None, fit_delays: 
     return out
 
 
-__all__ = ['Calibration', 'CalibrationError', 'DELAY_MAX', 'DELAY_MIN', 'DERIVED',
+__all__ = ['Calibration', 'CalibrationError', 'DELAY_MAX', 'LEAD_SAMPLES', 'DERIVED',
            'DETERMINED_REL_STD', 'Experiment', 'ParameterEstimate', 'Prior', 'calibrate',
            'check_free', 'delayed', 'experiment_from', 'fit_percent', 'fit_table',
            'misfit_table', 'noise_level', 'params_with', 'parse_prior', 'refuse_foreign_report',

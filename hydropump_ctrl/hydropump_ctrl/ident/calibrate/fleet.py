@@ -246,7 +246,8 @@ def table_columns(result: FleetResult) -> tuple[dict[str, list], dict[str, str]]
             cols[n + '_stderr'].append(e.stderr if e else math.nan)
             cols[n + '_rel_stderr'].append(100.0 * e.relative_stderr if e else math.nan)
             cols[n + '_well_determined'].append(bool(e.well_determined) if e else False)
-        fits = [v for per in cal.fit.values() for v in per.values()] if cal else []
+        fits = [v for per in cal.fit.values() for v in per.values() if v is not None] \
+            if cal else []
         cols['worst_fit_percent'].append(min(fits) if fits else math.nan)
         cols['flags'].append(len(cal.flags) if cal else 0)
         cols['wall_s'].append(p.wall_s)
@@ -281,7 +282,7 @@ def fleet_markdown(result: FleetResult) -> str:
             text = (f'{e.value:.6g} +- {e.stderr:.3g} ({rel:.2g} %)' if math.isfinite(rel)
                     else f'{e.value:.6g} (held)')
             cells.append(text if e.well_determined else f'**{text}**')
-        fits = [v for per in cal.fit.values() for v in per.values()]
+        fits = [v for per in cal.fit.values() for v in per.values() if v is not None]
         cells += [f'{min(fits):.2f}' if fits else '', str(len(cal.flags))]
         lines.append('| ' + ' | '.join(cells) + ' |')
     failed = [p for p in result.pumps if p.status == STATUS_FAILED]

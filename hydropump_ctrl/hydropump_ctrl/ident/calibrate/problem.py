@@ -33,7 +33,9 @@ from hydropump_sim.schema import spec_map, unknown_key_line
 
 from .engine import DERIVED, Engine
 
-DELAY_MIN = 0.0     # s: no sensor leads the recorded inputs
+# A signal may also lead the recorded current by a few samples: a bench that stamps its
+# current a sample late (or its measurements early) has measurements ahead of their cause.
+LEAD_SAMPLES = 3
 DELAY_MAX = 0.25    # s, the largest measurement delay fitted
 SENSITIVITY_STEP = 1e-4   # in the search coordinates: a relative change of 0.01 %
 
@@ -293,6 +295,40 @@ def best_delay(parts, d_min: float, d_max: float, offset: bool) -> tuple[float, 
     return best[1], best[2]
 
 
+def timing_convention(delays: dict[str, dict[str, float]], dt: float) -> str:
+    """In words, how the bench appears to stamp its signals, from the fitted delays
+    (recording -> signal -> s; 'all' when shared) and the sample period ``dt``: a lead that
+    every measured signal shares is the current stamped late (or the measurements early); a
+    lag is a signal's own sensor chain (a flow meter, a filter), or, shared by all, the
+    measurements stamped after a common delay."""
+    per: dict[str, list[float]] = {}
+    for v in delays.values():
+        for sig, d in v.items():
+            per.setdefault(sig, []).append(d)
+    if not per or dt <= 0:
+        return ''
+    d = {sig: float(np.median(v)) for sig, v in sorted(per.items())}
+
+    def listed(names):
+        return ', '.join(f'{s} {1e3 * d[s]:+.3g} ms' for s in names)
+    lead = [s for s, v in d.items() if v <= -0.5 * dt]
+    lag = [s for s, v in d.items() if v >= 0.5 * dt]
+    if len(lead) == len(d):
+        return (f'every measured signal leads the current ({listed(lead)}): the bench appears '
+                'to stamp the current late, or its measurements early')
+    if len(lag) == len(d):
+        return (f'every measured signal lags the current ({listed(lag)}): the bench appears '
+                'to stamp the current at its command and the measurements after a common '
+                'delay')
+    text = 'the current and the measurements appear stamped on the same samples'
+    if lag:
+        text += f'; lagging by a sensor chain of their own: {listed(lag)}'
+    if lead:
+        text += (f'; leading the current, which no sensor does: {listed(lead)} (a stamp of '
+                 'its own, or dynamics the model lacks)')
+    return text
+
+
 # ---- the problem ---------------------------------------------------------------------------
 
 class Problem:
@@ -314,6 +350,8 @@ class Problem:
         self.with_offset = {k for k in self.keys if k[1] in offsets}
         self.nuis = {k: (0.0, 0.0) for k in self.keys}   # (delay s, offset): warm starts
         self.n_plant = len(coords.names)
+        # The delays' window: a few recorded samples of lead up to DELAY_MAX of lag.
+        self.delay_min = -LEAD_SAMPLES * max((e.dt for e in self.exps), default=0.0)
         self.priors = list(priors)
         index = {n: j for j, n in enumerate(coords.names)}
         self._prior_cols = [index[p.name] for p in self.priors]
@@ -360,15 +398,15 @@ class Problem:
     def _inner(self, parts, start: float, offset: bool, search: bool) -> tuple[float, float]:
         """The delay (and offset) that fit the simulated ``y`` to the measured ``m`` of
         every ``(y, m, dt, sigma)`` in ``parts`` best: over every whole-sample shift in
-        ``[DELAY_MIN, DELAY_MAX]`` with ``search``, else within two samples of ``start``
+        ``[delay_min, DELAY_MAX]`` with ``search``, else within two samples of ``start``
         (see :func:`best_delay`)."""
         if not self.fit_delays:
             return 0.0, best_delay(parts, 0.0, 0.0, offset)[1]
         if search:
-            return best_delay(parts, DELAY_MIN, DELAY_MAX, offset)
+            return best_delay(parts, self.delay_min, DELAY_MAX, offset)
         dt = parts[0][2]
-        return best_delay(parts, max(DELAY_MIN, start - 2 * dt), min(DELAY_MAX, start + 2 * dt),
-                          offset)
+        return best_delay(parts, max(self.delay_min, start - 2 * dt),
+                          min(DELAY_MAX, start + 2 * dt), offset)
 
     def evaluate(self, z: np.ndarray, search: bool = False):
         """``(sims, nuisance, residuals)`` at ``z`` (cached)."""
@@ -397,6 +435,11 @@ class Problem:
             out.append({s: delayed(sim[s], nuis[self.key(i, s)][0], e.dt_model, e.fine)
                         + nuis[self.key(i, s)][1] for s in e.measured})
         return out
+
+    def residuals_of(self, sims, nuis) -> np.ndarray:
+        """The data residuals of simulated signals ``sims`` (per experiment, as
+        :meth:`.engine.Engine.outputs` gives them) with the delays and offsets ``nuis``."""
+        return np.concatenate(list(self._residual_blocks(self._apply(sims, nuis))))
 
     def predictions(self, z: np.ndarray) -> list[dict[str, np.ndarray]]:
         """The model's measurements (delays and offsets applied) per experiment."""
@@ -488,7 +531,7 @@ class Problem:
                 g = rows[(i, s)]
                 cd[g] = -_cubic(nominal[i][s], d, e.dt_model)[1][::e.fine] / e.sigma[s] * ok
                 co[g] = ok / e.sigma[s]
-            if self.fit_delays and DELAY_MIN < d < DELAY_MAX:
+            if self.fit_delays and self.delay_min < d < DELAY_MAX:
                 cols.append(cd)
             if nkey in self.with_offset:
                 cols.append(co)

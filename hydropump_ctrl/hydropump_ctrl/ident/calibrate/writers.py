@@ -69,7 +69,8 @@ def write_params(cal, path, header_lines: Sequence[str] = ()) -> Path:
     for n, v in cal.tied.items():
         lines.append(f'tied {n} = {v:.6g} ({DERIVED[n][1]})')
     for name, per in cal.fit.items():
-        lines.append(f'fit % {name}: ' + ', '.join(f'{s} {v:.2f}' for s, v in per.items()))
+        lines.append(f'fit % {name}: ' + ', '.join(f'{s} {_pct(v)}' for s, v in per.items()))
+    lines += [f'flag: {f}' for f in cal.flags]
     lines += list(header_lines)
     comments = {p.name: f'calibrated (start {p.initial:.6g})' for p in cal.estimates}
     comments.update({n: f'tied: {DERIVED[n][1]}' for n in cal.tied})
@@ -155,7 +156,17 @@ def _table(head, rows) -> str:
     return '\n'.join(out)
 
 
+#: How a fit % that means nothing (a signal that hardly moves in a recording) is shown.
+NOT_MEANINGFUL = 'n/m'
+
+
+def _pct(v, digits: int = 2) -> str:
+    return NOT_MEANINGFUL if v is None else f'{v:.{digits}f}'
+
+
 def fit_table(fit: dict, before: dict | None = None) -> str:
+    """Fit % per recording and signal (with ``before``: start -> calibrated); ``n/m`` where
+    the signal hardly moves in the recording (its fit % is not meaningful)."""
     sigs = sorted({s for per in fit.values() for s in per})
     rows = []
     for name, per in fit.items():
@@ -164,9 +175,9 @@ def fit_table(fit: dict, before: dict | None = None) -> str:
             if s not in per:
                 cells.append('')
             elif before is not None:
-                cells.append(f'{before[name][s]:.1f} -> {per[s]:.2f}')
+                cells.append(f'{_pct(before[name][s], 1)} -> {_pct(per[s])}')
             else:
-                cells.append(f'{per[s]:.2f}')
+                cells.append(_pct(per[s]))
         rows.append([name] + cells)
     return _table(['recording'] + sigs, rows)
 
@@ -250,8 +261,15 @@ def write_calibration_report(cal, out: Path, *, plots: bool = True) -> Path:
            "The residual (measured - model) after calibration, beside each signal's noise "
            'level: a ratio near 1 is a fit to the noise; above 1.5 the model leaves out '
            'something the data have.', '', misfit_table(cal.misfit), '',
+           *_missing_section(cal),
            '## Fit per recording and signal (%, start -> calibrated)', '',
-           fit_table(cal.fit, cal.fit_before), '', '## Measurement delays [ms]', '',
+           fit_table(cal.fit, cal.fit_before), '',
+           f'{NOT_MEANINGFUL}: the signal moves less than a few times its noise in that '
+           'recording, so a fit % says nothing there (the misfit table does).', '',
+           '## Measurement delays [ms]', '',
+           'Each measured signal against the recorded current (negative: it leads the '
+           f'current). {(cal.timing[:1].upper() + cal.timing[1:] + ".") if cal.timing else ""}',
+           '',
            _table(['recording'] + sorted({s for v in cal.delays.values() for s in v}),
                   [[n] + [f'{1e3 * v[s]:.2f}' if s in v else '' for s in
                           sorted({s for v in cal.delays.values() for s in v})]
@@ -263,6 +281,19 @@ def write_calibration_report(cal, out: Path, *, plots: bool = True) -> Path:
     if figs:
         md += ['## Figures', ''] + [f'![{f.stem}]({f.name})' for f in figs]
     return write_text(out / 'report.md', '\n'.join(md) + '\n', 'report')
+
+
+def _missing_section(cal) -> list[str]:
+    """What the model may lack (:mod:`.lacks`), when the misfit says it lacks something."""
+    if not cal.missing:
+        return []
+    return ['## What the model may lack', '',
+            'Signals are not fitted to their noise. Each parameter left fixed was tried as if '
+            'freed alone (a score test at the solution, the free parameters and delays moving '
+            'with it); these would explain the most:', '',
+            *[f'{k + 1}. {c["text"]}' for k, c in enumerate(cal.missing)], '',
+            'Free the first (with --free) and calibrate again; an effect at zero starts from '
+            'the value the data suggest.', '']
 
 
 def write_validation_report(val: dict, out: Path, params_file: str,
