@@ -50,7 +50,7 @@ from .data import (
     noise_level,
 )
 from .engine import DERIVED, Engine, params_with, simulate_experiment, tied_values
-from .lacks import missing, zero_starts
+from .lacks import columns, missing, zero_starts
 from .problem import (
     check_free,
     Coordinates,
@@ -63,7 +63,14 @@ from .problem import (
     timing_convention,
 )
 from .start import start_values
-from .uncertainty import analyse, DETERMINED_REL_STD, interval, singular_directions
+from .uncertainty import (
+    analyse,
+    CONSIDERED,
+    considered,
+    DETERMINED_REL_STD,
+    interval,
+    singular_directions,
+)
 from .writers import (
     fit_table,
     refuse_foreign_report,
@@ -91,6 +98,8 @@ class ParameterEstimate:
     held: bool = False                # held at ``value`` (a singular direction)
     on_bound: str | None = None       # 'lower' / 'upper'
     prior: str | None = None          # the prior it was given
+    # The part of the interval's width from constants the model fixes (uncertainty.CONSIDERED)
+    model_stderr: float = 0.0
 
     @property
     def relative_stderr(self) -> float:
@@ -102,7 +111,8 @@ class ParameterEstimate:
                 'ci95': [_num(v) for v in self.ci95], 'initial': self.initial,
                 'well_determined': self.well_determined, 'reason': self.reason,
                 'held': self.held, 'held_at': self.value if self.held else None,
-                'on_bound': self.on_bound, 'prior': self.prior}
+                'on_bound': self.on_bound, 'prior': self.prior,
+                'model_stderr': _num(self.model_stderr)}
 
 
 def _num(v):
@@ -397,8 +407,9 @@ def calibrate(recordings: Sequence, base: Params, free: Sequence[str], *,
             method += '; a singular direction held at the start'
         r = prob.data_residuals(z)
         unc = analyse(Jr, r, free, prob.row_groups(), J_prior, held)
+        model_se = _considered(prob, z, Jr, params_with(base, free, prob.theta(z)), free)
         cal = _result(prob, base, free, coords, theta0, z, unc, before, notes, recordings,
-                      method, t_wall)
+                      method, t_wall, model_se)
         cal.cost_start = cost_start
         if any(m['ratio'] > MISFIT_RATIO for per in cal.misfit.values() for m in per.values()):
             recorded = ['load_pressure'] if any(e.load_pressure is not None for e in exps) \
@@ -428,6 +439,25 @@ def _from_zero(prob: Problem, z: np.ndarray) -> np.ndarray:
     return z
 
 
+def _considered(prob: Problem, z: np.ndarray, Jr: np.ndarray, params: Params,
+                free: Sequence[str]) -> np.ndarray:
+    """Per free parameter, the standard error (search coordinates) that the constants of
+    :data:`.uncertainty.CONSIDERED` not free give it (consider analysis)."""
+    names = [n for n in CONSIDERED if n not in free]
+    if not names:
+        return np.zeros(len(free))
+    coords = Coordinates.of(params, names)
+    theta = np.array([float(params.flat()[n]) for n in names])
+    # The considered spread in each constant's own search coordinate.
+    sd = np.array([CONSIDERED[n] for n in names]) * theta / coords.dtheta_dz(theta)
+    Jc = columns(prob, params, names)
+    _, Jn = prob.sensitivities(z)
+    if Jn.shape[1]:
+        Q, _ = np.linalg.qr(Jn)
+        Jc = Jc - Q @ (Q.T @ Jc)
+    return considered(Jr, Jc, sd)
+
+
 def _projected(prob: Problem, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     from .uncertainty import reduce_nuisance
     Jp, Jn = prob.sensitivities(z)
@@ -435,7 +465,7 @@ def _projected(prob: Problem, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _result(prob, base, free, coords, theta0, z, unc, before, notes, recordings, method,
-            t_wall) -> Calibration:
+            t_wall, model_se) -> Calibration:
     exps = prob.exps
     theta = prob.theta(z)
     params = params_with(base, free, theta)
@@ -481,9 +511,11 @@ def _result(prob, base, free, coords, theta0, z, unc, before, notes, recordings,
         held = n in held_names
         se = math.inf if held else float(se_z * dth[j])
         ci = (math.nan, math.nan) if held else \
-            interval(float(z[j]), se_z, bool(coords.log[j]), float(coords.scale[j]))
+            interval(float(z[j]), math.hypot(se_z, float(model_se[j])), bool(coords.log[j]),
+                     float(coords.scale[j]))
         estimates.append(ParameterEstimate(n, float(theta[j]), float(theta0[j]), se, ci, good,
-                                           reason, held, bound, prior_of.get(n)))
+                                           reason, held, bound, prior_of.get(n),
+                                           float(model_se[j] * dth[j])))
         if reason:
             flags.append(f'{n}: {reason}')
     for (i, s), (d, _) in nuis.items():

@@ -66,10 +66,11 @@ def _basis(prob: Problem, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return (np.linalg.qr(fixed)[0] if fixed.shape[1] else np.zeros((r.size, 0))), r
 
 
-def _scores(prob: Problem, z: np.ndarray, Q: np.ndarray, r: np.ndarray, params: Params,
-            names: Sequence[str]) -> dict[str, float]:
-    """The drop in the weighted sum of squares each candidate's own column predicts at the
-    solution (the score test), from copies of the plant stepped with the calibrated run."""
+def columns(prob: Problem, params: Params, names: Sequence[str]) -> np.ndarray:
+    """The sensitivity columns of the weighted residuals to ``names`` at ``params`` (the
+    fitted delays and offsets held), in their search coordinates
+    (:class:`.problem.Coordinates`), from copies of the plant stepped with the calibrated
+    run."""
     coords = Coordinates.of(params, names)
     engine = Engine(params, names, prob.exps, rtol=prob.engine.rtol,
                     executor=prob.engine.executor)
@@ -79,8 +80,15 @@ def _scores(prob: Problem, z: np.ndarray, Q: np.ndarray, r: np.ndarray, params: 
         J, _ = other.sensitivities(coords.to_z(np.array([params.flat()[n] for n in names])),
                                    nuis=prob.nuis)
         prob.engine.n_trajectories += engine.n_trajectories
+        return J
     finally:
         engine.close()
+
+
+def _scores(Q: np.ndarray, r: np.ndarray, J: np.ndarray, names: Sequence[str]
+            ) -> dict[str, float]:
+    """The drop in the weighted sum of squares each candidate's own column ``J[:, k]``
+    predicts at the solution (the score test)."""
     J = J - Q @ (Q.T @ J)
     h = np.einsum('ij,ij->j', J, J)
     g = J.T @ r
@@ -142,7 +150,7 @@ def rank(prob: Problem, z: np.ndarray, names: Sequence[str], params: Params) -> 
     chosen = [n for n in names if flat[n] == 0.0]
     valued = [n for n in names if flat[n] != 0.0]
     if valued:
-        score = _scores(prob, z, Q, r, params, valued)
+        score = _scores(Q, r, columns(prob, params, valued), valued)
         chosen += sorted(valued, key=lambda n: -score[n])[:PROFILED]
     blocks = list(zip(prob.blocks, prob.row_groups()))
     sse = float(r @ r)

@@ -313,19 +313,18 @@ def timing_convention(delays: dict[str, dict[str, float]], dt: float) -> str:
         return ', '.join(f'{s} {1e3 * d[s]:+.3g} ms' for s in names)
     lead = [s for s, v in d.items() if v <= -0.5 * dt]
     lag = [s for s, v in d.items() if v >= 0.5 * dt]
-    if len(lead) == len(d):
-        return (f'every measured signal leads the current ({listed(lead)}): the bench appears '
-                'to stamp the current late, or its measurements early')
-    if len(lag) == len(d):
+    if lead:
+        # No sensor answers before its cause: a lead is the stamps' doing.
+        text = (f'the bench appears to stamp the current about {-1e3 * min(d.values()):.3g} ms '
+                f'late against the measurements, or them early: {listed(lead)} lead it')
+    elif len(lag) == len(d):
         return (f'every measured signal lags the current ({listed(lag)}): the bench appears '
                 'to stamp the current at its command and the measurements after a common '
                 'delay')
-    text = 'the current and the measurements appear stamped on the same samples'
+    else:
+        text = 'the current and the measurements appear stamped on the same samples'
     if lag:
         text += f'; lagging by a sensor chain of their own: {listed(lag)}'
-    if lead:
-        text += (f'; leading the current, which no sensor does: {listed(lead)} (a stamp of '
-                 'its own, or dynamics the model lacks)')
     return text
 
 

@@ -13,6 +13,11 @@ offsets) projected out, gives
   error below :data:`DETERMINED_REL_STD` (within 2 % at three standard errors). A poorly
   determined parameter is still estimated; it is flagged, with the direction of parameter
   space that is weak and the combination the data do determine (``beta / V_l``);
+- the **constants the equations fix but no pump states** (:data:`CONSIDERED`: where the
+  orifice laws turn laminar) widen the 95 % intervals by what their uncertainty does to the
+  estimates (consider analysis): a pump whose orifices follow another law near their
+  laminar region than the model's biases the estimates by more than the noise does, and
+  the interval says so; the standard error stays the noise's;
 - directions the information matrix is **singular** in to working precision: an eigenvalue
   below :data:`SINGULAR` of the largest, after scaling each parameter to unit sensitivity.
   The sensitivities come from copies of the plant that share the nominal run's iteration
@@ -42,6 +47,12 @@ DETERMINED_REL_STD = 0.02 / 3.0
 # sensitivity) is zero to working precision: the square of the sensitivities' accuracy.
 SINGULAR = 1e-6
 Z95 = 1.959963984540054   # the two-sided 95 % quantile of the normal distribution
+
+#: Constants the equations fix but no pump states, considered uncertain in the intervals
+#: (consider analysis), as a standard deviation of their logarithm: the pressure drops at
+#: which the orifice laws turn laminar (the model's regularisation; a real orifice's
+#: transition and the law's form near it are known only to a factor of about two).
+CONSIDERED = {'actuator.dp_cr_a': math.log(2.0), 'line.dp_cr_u': math.log(2.0)}
 
 
 @dataclass
@@ -168,6 +179,17 @@ def analyse(Jr: np.ndarray, r: np.ndarray, names: Sequence[str], groups: Sequenc
                          'determined_combination': text})
     return Uncertainty(sv, C, corr, sd, weak, held_out, basis if held.shape[1] else None,
                        info_data)
+
+
+def considered(Jr: np.ndarray, Jc: np.ndarray, sd: np.ndarray) -> np.ndarray:
+    """The standard error each plant parameter (search coordinates) takes from constants
+    held at uncertain values: ``Jc`` their columns (nuisance projected out, as ``Jr``'s),
+    ``sd`` their standard deviations in their own search coordinates. Each shifts the
+    least-squares estimate by ``-(Jr' Jr)^-1 Jr' Jc``; the shifts add in quadrature."""
+    if Jc.shape[1] == 0 or Jr.shape[1] == 0:
+        return np.zeros(Jr.shape[1])
+    shift = np.linalg.lstsq(Jr, Jc, rcond=None)[0] * sd
+    return np.sqrt(np.sum(shift ** 2, axis=1))
 
 
 def interval(z: float, se: float, log: bool, scale: float) -> tuple[float, float]:
