@@ -14,10 +14,10 @@ offsets) projected out, gives
   determined parameter is still estimated; it is flagged, with the direction of parameter
   space that is weak and the combination the data do determine (``beta / V_l``);
 - the **constants the equations fix but no pump states** (:data:`CONSIDERED`: where the
-  orifice laws turn laminar) widen the 95 % intervals by what their uncertainty does to the
-  estimates (consider analysis): a pump whose orifices follow another law near their
-  laminar region than the model's biases the estimates by more than the noise does, and
-  the interval says so; the standard error stays the noise's;
+  orifice laws turn laminar, where friction is smoothed) widen the 95 % intervals by what
+  their uncertainty does to the estimates (consider analysis): a pump whose orifices follow
+  another law near their laminar region than the model's biases the estimates by more than
+  the noise does, and the interval says so; the standard error stays the noise's;
 - directions the information matrix is **singular** in to working precision: an eigenvalue
   below :data:`SINGULAR` of the largest, after scaling each parameter to unit sensitivity.
   The sensitivities come from copies of the plant that share the nominal run's iteration
@@ -49,10 +49,12 @@ SINGULAR = 1e-6
 Z95 = 1.959963984540054   # the two-sided 95 % quantile of the normal distribution
 
 #: Constants the equations fix but no pump states, considered uncertain in the intervals
-#: (consider analysis), as a standard deviation of their logarithm: the pressure drops at
-#: which the orifice laws turn laminar (the model's regularisation; a real orifice's
-#: transition and the law's form near it are known only to a factor of about two).
-CONSIDERED = {'actuator.dp_cr_a': math.log(2.0), 'line.dp_cr_u': math.log(2.0)}
+#: (consider analysis), as a standard deviation of their logarithm: the model's
+#: regularisations, the pressure drops at which the orifice laws turn laminar and the
+#: velocities below which Coulomb friction is smoothed (a real orifice's transition and a
+#: real friction's law near rest are known only to a factor of about two).
+CONSIDERED = {'actuator.dp_cr_a': math.log(2.0), 'line.dp_cr_u': math.log(2.0),
+              'spool.v_eps_c': math.log(2.0), 'plate.v_eps_a': math.log(2.0)}
 
 
 @dataclass
