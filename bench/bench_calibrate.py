@@ -41,18 +41,17 @@ import tempfile
 import time
 
 import numpy as np
-from scipy.optimize import least_squares
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(ROOT))
 from bench_sweep import wait_idle  # noqa: E402
+from naive_calibrate import naive  # noqa: E402
 
 from hydropump_ctrl.batch import DaskExecutor, InProcess, open_client  # noqa: E402
 from hydropump_ctrl.ident import read_recordings  # noqa: E402
 from hydropump_ctrl.ident.calibrate import calibrate, params_with  # noqa: E402
 from hydropump_ctrl.ident.calibrate.fleet import calibrate_fleet  # noqa: E402
-from hydropump_ctrl.ident.fit import blas_single_threaded  # noqa: E402
 from hydropump_sim.params import load_params  # noqa: E402
 from hydropump_sim.simulate import simulate  # noqa: E402
 from tests import independent as ind  # noqa: E402
@@ -61,7 +60,6 @@ from common import emit, median_time, row  # noqa: E402
 
 FREE = ('actuator.mu_a', 'actuator.P_a_bar', 'line.V_l', 'line.mu_u')
 FACTORS = (1.3, 0.8, 1.45, 0.88)
-OUTPUT = {'line_flow': 'q_l', 'line_pressure': 'P_l', 'actuator_pressure': 'P_a'}
 CASES = {'flow and line pressure': ['line_flow', 'line_pressure'],
          'four bench sensors': ['line_flow', 'line_pressure', 'actuator_pressure']}
 
@@ -71,74 +69,29 @@ FLEET = {'pump_a': FACTORS, 'pump_b': (0.85, 1.15, 0.8, 1.12), 'pump_c': (1.12, 
          'pump_d': (0.9, 1.1, 1.3, 1.1)}
 
 
-def data(folder: Path, factors=FACTORS, seed=7):
-    base = load_params(ROOT / 'config' / 'pump.yaml')
-    truth = params_with(base, FREE, [base.flat()[n] * f for n, f in zip(FREE, factors)])
+def designs(truth) -> dict:
+    """Two current staircases at two load pressures and load-pressure steps (17 s)."""
     lo, hi = truth.current_range
     stairs = ind.staircase([lo + x * (hi - lo) for x in (0.3, 0.45, 0.6, 0.4, 0.55, 0.7, 0.5)],
                            0.8)
     steps = ind.staircase([12e6, 9e6, 13e6, 10e6], 1.0)
-    designs = {'stairs_120bar': (stairs, None), 'stairs_80bar': (stairs, np.full(stairs.size,
-                                                                                  8e6)),
-               'load_steps': (np.full(steps.size, lo + 0.5 * (hi - lo)), steps)}
+    return {'stairs_120bar': (stairs, None),
+            'stairs_80bar': (stairs, np.full(stairs.size, 8e6)),
+            'load_steps': (np.full(steps.size, lo + 0.5 * (hi - lo)), steps)}
+
+
+def data(folder: Path, factors=FACTORS, seed=7):
+    base = load_params(ROOT / 'config' / 'pump.yaml')
+    truth = params_with(base, FREE, [base.flat()[n] * f for n, f in zip(FREE, factors)])
+    lo, hi = truth.current_range
     paths = []
-    for k, (name, (cur, load)) in enumerate(designs.items()):
+    for k, (name, (cur, load)) in enumerate(designs(truth).items()):
         rec = ind.measure(ind.run(truth, cur, load), ind.BENCH, seed=(seed, k))
         paths.append(ind.write(folder / name, 1e-3, rec, truth.fluid.p_atm))
     t = np.arange(4000) * 1e-3
     held = ind.run(truth, lo + (hi - lo) * (0.5 + 0.25 * np.sin(
         2 * np.pi * 0.7 * np.floor(t / 0.02) * 0.02)), np.where(t < 2.0, 12e6, 9e6))
     return base, truth, read_recordings(paths), held
-
-
-@blas_single_threaded
-def naive(base, recs, signals):
-    """The baseline (see the module): about sixty lines a user would write."""
-    p_atm = base.fluid.p_atm
-    data = []
-    for r in recs:
-        cur = np.asarray(r['solenoid_current'])
-        load = np.asarray(r['load_pressure']) - p_atm
-        load = np.append(load[1:], load[-1])        # the sample of the step that ended there
-        meas = {s: np.asarray(r[s]) - (p_atm if 'pressure' in s else 0.0) for s in signals}
-        sig = {s: np.std(np.diff(v, 2)) / np.sqrt(6.0) for s, v in meas.items()}
-        data.append((cur, load, meas, sig, r.dt))
-    theta0 = np.array([base.flat()[n] for n in FREE])
-
-    def sims(x):
-        p = params_with(base, FREE, theta0 * np.exp(x))
-        out = []
-        for cur, load, _, _, dt in data:
-            res = simulate(p, (cur.size - 1) * dt, cur, load_pressure=load, dt_out=dt)
-            out.append({s: getattr(res, OUTPUT[s])[:cur.size] for s in signals})
-        return out
-
-    def shift(y, d, dt):
-        t = np.arange(y.size) * dt
-        return np.interp(t - d, t, y)
-
-    def flow_sse(out, d):
-        return sum(float(np.sum((shift(o['line_flow'], d, dt) - m['line_flow']) ** 2))
-                   for o, (_, _, m, _, dt) in zip(out, data))
-
-    grid = np.arange(0.0, 0.1, 5e-4)
-    start = sims(np.zeros(len(FREE)))
-    delay = float(grid[int(np.argmin([flow_sse(start, d) for d in grid]))])
-
-    def resid(x):
-        try:
-            out = sims(x)
-        except Exception:   # a trial point the model cannot simulate
-            return np.full(sum(c.size * len(signals) for c, *_ in data), 1e3)
-        res = []
-        for o, (_, _, m, sg, dt) in zip(out, data):
-            for s in signals:
-                y = shift(o[s], delay, dt) if s == 'line_flow' else o[s]
-                res.append((y - m[s]) / sg[s])
-        return np.concatenate(res)
-
-    sol = least_squares(resid, np.zeros(len(FREE)), bounds=(-1.5, 1.5))
-    return theta0 * np.exp(sol.x), delay
 
 
 def held_out_error(params, run) -> tuple[float, float]:
@@ -249,8 +202,73 @@ def one_pump(recs, base, signals, executor=None) -> float:
     return median_time(fit, 3)[0]
 
 
-def main() -> int:
+# Effects config/pump.yaml leaves at zero, in the pump of the whole-command rows.
+EFFECTS = {'actuator.G_leak_a': 1e-12, 'plate.F_coul_a': 50.0}
+
+
+def command_rows(repeat: int = 3) -> list[dict]:
+    """Whole commands as a user runs them, on bags of the pump written apart from the model
+    (``tests/paper_plant.py``) with actuator leakage and plate friction: ``hydropump
+    calibrate`` (process start, reading, calibration, the report with its figures and
+    without) against the naive script (``naive_calibrate.py``: process start, reading, the
+    fit, its params file), four parameters free and six (the effects too); interleaved,
+    each started on idle cores, medians of ``repeat``."""
+    import json
+    import subprocess
+
+    from tests import paper_plant
+    base = load_params(ROOT / 'config' / 'pump.yaml')
+    truth = params_with(base, FREE, [base.flat()[n] * f for n, f in
+                                     zip(FREE, FACTORS)]).replace(EFFECTS)
+    tf = truth.flat()
+    signals = CASES['four bench sensors']
     rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        bags = []
+        for k, (name, (cur, load)) in enumerate(designs(truth).items()):
+            rec = ind.measure(paper_plant.run(tf, cur, load), ind.BENCH, seed=(11, k))
+            bags.append(str(ind.write(tmp / 'bags' / name, 1e-3, rec, truth.fluid.p_atm)))
+        tool = Path(sys.executable).parent / 'hydropump'
+        for case, free in (('four free', FREE), ('six free', FREE + tuple(EFFECTS))):
+            ours = [str(tool), 'calibrate', *bags, '--free', *free, '--signals', *signals,
+                    '--report', str(tmp / 'report'), '--no-progress']
+            cmds = {'project': ours, 'project, no figures': ours + ['--no-plots'],
+                    'naive': [sys.executable, str(Path(__file__).parent / 'naive_calibrate.py'),
+                              *bags, '--free', *free, '--signals', *signals, '--out',
+                              str(tmp / 'naive.yaml')]}
+            times: dict[str, list[float]] = {k: [] for k in cmds}
+            for _ in range(repeat):
+                for k, cmd in cmds.items():
+                    wait_idle()
+                    t0 = time.perf_counter()
+                    subprocess.run(cmd, check=True, capture_output=True)
+                    times[k].append(time.perf_counter() - t0)
+            t = {k: statistics.median(v) for k, v in times.items()}
+            result = json.loads((tmp / 'report' / 'result.json').read_text())
+            mine = max(abs(v['value'] / tf[n] - 1) for n, v in result['parameters'].items())
+            theirs = max(abs(load_params(tmp / 'naive.yaml').flat()[n] / tf[n] - 1)
+                         for n in free)
+            named = [c['parameter'] for c in result['missing_effects']]
+            for k, v in times.items():
+                print(f'command, {case}, {k}: ' + ', '.join(f'{x:.2f}' for x in v)
+                      + f' s: median {t[k]:.2f} s')
+            print(f'command, {case}: worst parameter error {100 * mine:.2f} % (naive '
+                  f'{100 * theirs:.2f} %); named as missing: {", ".join(named) or "-"}')
+            rows += [
+                row(f'calibrate command, {case}: speed-up over the naive script',
+                    t['naive'] / t['project'], 'x', '>= 2', t['naive'] / t['project'] >= 2.0,
+                    f'project {t["project"]:.2f} s (no figures {t["project, no figures"]:.2f}'
+                    f' s), naive {t["naive"]:.2f} s; whole processes, medians of {repeat}'),
+                row(f'calibrate command, {case}: worst parameter error (naive)', 100 * mine,
+                    '%', '', None, f'{100 * theirs:.2f} %; named missing: '
+                    f'{", ".join(named) or "-"}'),
+            ]
+    return rows
+
+
+def main() -> int:
+    rows = command_rows()
     with tempfile.TemporaryDirectory() as tmp:
         base, truth, recs, held = data(Path(tmp))
     tf = truth.flat()
@@ -266,7 +284,7 @@ def main() -> int:
             t_ours.append(time.perf_counter() - t0)
             wait_idle()
             t0 = time.perf_counter()
-            vals, delay = naive(base, recs, signals)
+            vals, delay = naive(base, recs, signals, FREE)
             t_naive.append(time.perf_counter() - t0)
         ours = [abs(p.value / tf[p.name] - 1) for p in cal.estimates]
         theirs = [abs(v / tf[n] - 1) for n, v in zip(FREE, vals)]

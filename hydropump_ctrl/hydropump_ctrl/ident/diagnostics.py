@@ -16,7 +16,6 @@ import time
 
 import numpy as np
 from scipy import fft as sfft
-from scipy import stats
 
 from .model import PARAMS
 
@@ -223,6 +222,8 @@ def residual_checks(r: np.ndarray, v: np.ndarray, lags: int = N_LAGS,
     n = r.size
     acf = xcorr(r, r, lags)[lags:]
     z_auto = np.abs(acf[1:]) * math.sqrt(n)
+    # scipy.stats takes 0.7 s to import: only where the whiteness test needs its quantiles.
+    from scipy import stats
     zc_auto = float(stats.norm.ppf(1 - (1 - (1 - alpha) ** (1 / lags)) / 2))
     ccf = xcorr(v, r, lags)
     acf_u = xcorr(v, v, lags)[lags:]

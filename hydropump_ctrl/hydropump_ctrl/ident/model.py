@@ -24,7 +24,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import signal
 
 # The paper's result (section V): value and "±" (spread over nine data sets), SI.
 PAPER = {'G0': (100.0, 0.7), 'tau': (0.100, 0.002), 'td': (0.055, 0.0055)}
@@ -70,6 +69,8 @@ def zero_state_response(v: np.ndarray, dt: float, tau: float, td: float) -> np.n
     w = b1 * shift(v, d) + b2 * shift(v, d + 1)
     x = np.empty_like(v)
     x[0] = 0.0
+    # scipy.signal takes half a second to import: only here, where it is used.
+    from scipy import signal
     x[1:] = signal.lfilter([1.0], [1.0, -a], w[:-1])
     return x
 

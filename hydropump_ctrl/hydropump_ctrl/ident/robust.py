@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 from scipy import fft as sfft
-from scipy import optimize, signal
+from scipy import optimize
 
 from .diagnostics import bound_flags, covariance, Estimate
 from .model import coefficients
@@ -72,6 +72,7 @@ class Window:
         Derivatives of ``x`` with respect to ``tau`` and the delay fraction follow their own
         first-order recursions (one more filter pass).
         """
+        from scipy import signal  # half a second to import: where it is used
         G0, tau, td, c0, e0 = theta[:5]
         dt, v, k0, M = self.dt, self.v, self.k0, self.M
         N = v.size
@@ -126,6 +127,7 @@ def delay_profile(win: Window, taus: np.ndarray, d_lo: int, d_hi: int) -> np.nda
     The products of ``s`` with the free response ``a^(k-k0)`` for all delays come from one
     backward first-order filter pass.
     """
+    from scipy import signal  # half a second to import: where it is used
     v, k0, M, dt = win.v, win.k0, win.M, win.dt
     N = v.size
     y = win.y - win.y.mean()            # centring keeps the normal equations well scaled

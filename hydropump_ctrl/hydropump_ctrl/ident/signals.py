@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 from scipy import fft as sfft
-from scipy import optimize, signal
+from scipy import optimize
 
 from hydropump_sim.metrics import moving_average
 
@@ -70,6 +70,7 @@ def smooth(x: np.ndarray, dt: float, span: float = SMOOTH_SPAN) -> np.ndarray:
 
 def find_steps(u: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """Step instants (sample indices) and signed sizes of a (dithered) staircase input."""
+    from scipy import signal  # half a second to import: where it is used
     h = smoothing_width(dt)
     us = smooth(u, dt)
     jump = np.zeros_like(us)

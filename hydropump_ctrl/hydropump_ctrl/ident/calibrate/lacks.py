@@ -42,7 +42,7 @@ from .problem import check_free, Coordinates, Problem
 EXPLAINS = 0.05
 SHOWN = 3
 #: Candidates with a value that are profiled: those the score ranks first.
-PROFILED = 8
+PROFILED = 6
 #: Trial factors on a candidate's value, and the decades of its range tried from zero.
 FACTORS = (0.5, 0.7, 1.4, 2.0)
 DECADES = (1e-4, 1e-3, 1e-2, 1e-1)
@@ -119,6 +119,9 @@ def _profile(prob: Problem, Q: np.ndarray, r: np.ndarray, params: Params, name: 
             rr = rr - Q @ (Q.T @ rr)
             tried[v] = (float(rr @ rr), rr)
         return tried[v]
+    if value:
+        # At its own value the residual is the solution's, already clear of the span.
+        tried[value] = (float(r @ r), r)
     try:
         grid = sorted(_trials(value, lo, hi) + ([value] if value else []))
         for v in grid:
@@ -131,6 +134,16 @@ def _profile(prob: Problem, Q: np.ndarray, r: np.ndarray, params: Params, name: 
         for nb in (grid[k - 1] if k > 0 else None, grid[k + 1] if k + 1 < len(grid) else None):
             if nb is not None and nb > 0 and best > 0:
                 at(math.sqrt(nb * best))
+        # Then the vertex of the parabola (in log of the value) through the best and its two
+        # neighbours among those tried.
+        vs = sorted(v for v in tried if v > 0)
+        best = min(tried, key=lambda v: tried[v][0])
+        if best > 0 and 0 < vs.index(best) < len(vs) - 1:
+            k = vs.index(best)
+            x = np.log(vs[k - 1:k + 2])
+            c = np.polyfit(x, [tried[v][0] for v in vs[k - 1:k + 2]], 2)
+            if c[0] > 0 and x[0] < -c[1] / (2 * c[0]) < x[2]:
+                at(float(np.exp(-c[1] / (2 * c[0]))))
         prob.engine.n_trajectories += engine.n_trajectories
     finally:
         engine.close()

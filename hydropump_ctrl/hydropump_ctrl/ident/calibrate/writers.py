@@ -92,27 +92,56 @@ def _safe(name: str) -> str:
     return ''.join(c if c.isalnum() or c in '-_' else '_' for c in name)[:60]
 
 
+# Points per drawn line: a longer record is drawn as the minimum and maximum of each of this
+# many spans (its envelope, as it would look anyway at the figure's resolution): the figures
+# of a long recording cost what a short one's do.
+DRAWN = 1500
+
+
+def _thin(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    n = t.size // DRAWN
+    if n < 2:
+        return t, y
+    m = n * DRAWN
+    yy = y[:m].reshape(DRAWN, n)
+    tt = t[:m].reshape(DRAWN, n)
+    lo, hi = np.nanargmin(np.where(np.isnan(yy), np.inf, yy), axis=1), \
+        np.nanargmax(np.where(np.isnan(yy), -np.inf, yy), axis=1)
+    first, second = np.minimum(lo, hi), np.maximum(lo, hi)
+    rows = np.arange(DRAWN)
+    return (np.column_stack([tt[rows, first], tt[rows, second]]).ravel(),
+            np.column_stack([yy[rows, first], yy[rows, second]]).ravel())
+
+
 def plot_comparison(exp, after: dict, path: Path, before: dict | None = None,
                     title: str = '', labels=('model, start', 'model, calibrated')) -> Path:
     """One recording: per signal, measured, the model before (dashed) and after, and the
     residual beside it."""
     plt = _pyplot()
     sigs = list(exp.measured)
-    fig, axes = plt.subplots(len(sigs), 2, figsize=(11, 1.9 * len(sigs) + 0.6), squeeze=False,
+    height = 1.9 * len(sigs) + 0.6
+    fig, axes = plt.subplots(len(sigs), 2, figsize=(11, height), squeeze=False,
                              gridspec_kw={'width_ratios': [3, 1.2]})
+    # Fixed margins (in inches) rather than a layout engine: measuring every label costs more
+    # than drawing the figure.
+    fig.subplots_adjust(left=0.09, right=0.985, bottom=0.55 / height, top=1 - 0.45 / height,
+                        hspace=0.45, wspace=0.16)
     t = np.arange(exp.n) * exp.dt
+
+    def line(ax, y, *style, **kw):
+        ax.plot(*_thin(t, y), *style, **kw)
     for row, s in enumerate(sigs):
         k, unit = DISPLAY.get(s, (1.0, ''))
         ax, axr = axes[row]
-        ax.plot(t, exp.measured[s] * k, color='0.6', lw=0.6, label='measured')
+        line(ax, exp.measured[s] * k, color='0.6', lw=0.6, label='measured')
         if before is not None:
-            ax.plot(t, before[s] * k, 'C1--', lw=0.9, label=labels[0])
-        ax.plot(t, after[s] * k, 'C0', lw=1.0, label=labels[1])
+            line(ax, before[s] * k, 'C1--', lw=0.9, label=labels[0])
+        line(ax, after[s] * k, 'C0', lw=1.0, label=labels[1])
         ax.set_ylabel(f'{s}\n[{unit}]', fontsize=8)
         ax.grid(alpha=0.3)
         if before is not None:
-            axr.plot(t, (exp.measured[s] - before[s]) * k, 'C1', lw=0.4, alpha=0.6)
-        axr.plot(t, (exp.measured[s] - after[s]) * k, 'C3', lw=0.5)
+            line(axr, (exp.measured[s] - before[s]) * k, 'C1', lw=0.4, alpha=0.6)
+        line(axr, (exp.measured[s] - after[s]) * k, 'C3', lw=0.5)
         axr.set_title(f'measured - model [{unit}]', fontsize=8)
         axr.grid(alpha=0.3)
         if row == 0:
@@ -120,7 +149,6 @@ def plot_comparison(exp, after: dict, path: Path, before: dict | None = None,
     axes[-1][0].set_xlabel('t [s]')
     axes[-1][1].set_xlabel('t [s]')
     fig.suptitle(title or exp.name, fontsize=10)
-    fig.tight_layout()
     try:
         return files.save_figure(fig, path, dpi=90)
     finally:
