@@ -30,3 +30,26 @@ try:
     _hs.load_profile(os.environ.get('HYPOTHESIS_PROFILE', 'ci'))
 except ImportError:  # pragma: no cover
     pass
+
+
+def assert_provenance(prov: dict, files=(), words=()) -> None:
+    """A report's provenance: a UTC date, the command line holding ``words``, this checkout's
+    commit (when it is one), the versions, and each of ``files`` with the SHA-256 of its
+    bytes as they are now (computed here, apart from the code under test)."""
+    from datetime import datetime
+    import hashlib
+    import subprocess
+    stamp = datetime.fromisoformat(prov['date'])
+    assert stamp.utcoffset() is not None and stamp.utcoffset().total_seconds() == 0
+    for w in words:
+        assert w in prov['command'], (w, prov['command'])
+    if (ROOT / '.git').exists():
+        head = subprocess.run(['git', '-C', str(ROOT), 'rev-parse', 'HEAD'],
+                              capture_output=True, text=True).stdout.strip()
+        assert prov['commit'].split('-')[0] == head, (prov['commit'], head)
+    assert {'python', 'numpy', 'scipy'} <= set(prov['versions'])
+    listed = {Path(f['path']): f for f in prov['inputs']}
+    for f in files:
+        entry = listed[Path(f).resolve()]
+        if Path(f).is_file():
+            assert entry['sha256'] == hashlib.sha256(Path(f).read_bytes()).hexdigest()

@@ -585,10 +585,13 @@ def dump_ros_yaml(flat: Mapping[str, Any], header: str = '',
                   comments: Mapping[str, str] | None = None,
                   specs: Mapping[str, ParamSpec] | None = None) -> str:
     """``{'group.name': value}`` as a nested ROS 2 params file (``/**: ros__parameters:``),
-    each value followed by its unit and description from ``specs``."""
+    each value followed by its unit and description from ``specs``. Every line of ``header``
+    is a comment: one that came apart at a line break inside a text it quotes (a path, a
+    command line) gets its ``#`` too, so no header text becomes YAML."""
     specs = specs or {}
     comments = comments or {}
-    lines = [ln.rstrip() for ln in header.splitlines()]
+    lines = [ln.rstrip() if not ln.strip() or ln.lstrip().startswith('#') else '# ' + ln.rstrip()
+             for ln in header.splitlines()]
     lines += ['/**:', '  ros__parameters:']
     prev: list[str] = []
     for key, val in flat.items():

@@ -180,3 +180,16 @@ def test_the_report_in_a_real_browser(demo):
     assert all(ok and w > 300 and h > 200 for ok, w, h in images), images
     assert len(rows) >= 4 and all(n >= 2 for n in rows), rows
     assert any('Fig. 1' in h for h in headings), headings
+
+
+def test_the_report_says_where_it_came_from(demo):
+    """summary.json and the page end with the provenance: date, command, commit, versions,
+    and the config files the graphs read with their SHA-256."""
+    from ..conftest import assert_provenance, ROOT
+    out, _, s = demo
+    assert_provenance(s['provenance'], [ROOT / 'config' / 'pump.yaml',
+                                        ROOT / 'config' / 'bench.yaml',
+                                        ROOT / 'config' / 'controller.yaml',
+                                        ROOT / 'config' / 'circuits' / 'fig1.yaml'],
+                      ['--quick'])
+    assert '<h2>Provenance</h2>' in (out / 'report.html').read_text()

@@ -108,3 +108,34 @@ def test_help_of_both_commands_works():
         proc = subprocess.run([sys.executable, '-m', 'hydropump_ctrl.cli', cmd, '--help'],
                               capture_output=True, text=True, timeout=60)
         assert proc.returncode == 0 and 'usage: hydropump' in proc.stdout, proc.stderr
+
+
+def test_the_reports_say_where_they_came_from(bag, tmp_path, capsys):
+    """calibrate and validate: the JSON on stdout, result.json / validation.json and the
+    report pages carry the provenance (date, command, commit, versions, the params file's
+    SHA-256); the calibrated file's header carries it as a comment."""
+    import json
+
+    from ..conftest import assert_provenance
+    start = tmp_path / 'start.yaml'
+    start.write_text((ROOT / 'config' / 'pump.yaml').read_text())
+    rep = tmp_path / 'rep'
+    code = main(['calibrate', str(bag), '--free', 'line.mu_u', '--params', str(start),
+                 '--report', str(rep), '--no-plots', '--no-progress', '--json'])
+    out = capsys.readouterr().out
+    assert code == 0
+    for prov in (json.loads(out)['provenance'],
+                 json.loads((rep / 'result.json').read_text())['provenance']):
+        assert_provenance(prov, [start], ['calibrate', '--free line.mu_u'])
+    assert '## Provenance' in (rep / 'report.md').read_text()
+    header = (rep / 'calibrated.yaml').read_text().split('/**')[0]
+    assert '# command: hydropump calibrate' in header and '# date 20' in header
+    val = tmp_path / 'val'
+    code = main(['validate', str(bag), '--params', str(rep / 'calibrated.yaml'), '--out',
+                 str(val), '--no-plots', '--json'])
+    out = capsys.readouterr().out
+    assert code == 0
+    for prov in (json.loads(out)['provenance'],
+                 json.loads((val / 'validation.json').read_text())['provenance']):
+        assert_provenance(prov, [rep / 'calibrated.yaml', start], ['validate'])
+    assert '## Provenance' in (val / 'validation.md').read_text()

@@ -229,3 +229,19 @@ def test_a_set_value_that_expands_is_refused_and_a_recursive_one_too():
     assert 'recursive alias' in err.value.lines[0]
     # A few shared values (what yaml.safe_dump writes for a repeated object) are fine.
     assert assignments(['a.b=[&x [1, 2], *x]']) == {'a.b': [[1, 2], [1, 2]]}
+
+
+def test_a_params_file_header_quoting_text_with_line_breaks_stays_a_comment(tmp_path):
+    """A params file's header quotes paths and command lines (a calibrated file's bags and
+    provenance): a line break in one, of any kind YAML knows, never starts a line of YAML."""
+    from hydropump_sim.params import default_params_path, load_params
+    from hydropump_sim.schema import dump_ros_yaml
+    p = load_params(default_params_path())
+    for brk in ('\n', '\r', '\x85', '\u2028', '\u2029'):
+        evil = f'bag{brk}/**:{brk}  ros__parameters:{brk}    line:{brk}      V_l: 9.0'
+        text = dump_ros_yaml(p.flat(), header=f'# calibrated from {evil}')
+        head = text[:text.index('\n/**:\n  ros__parameters:')]
+        assert all(ln.startswith('#') for ln in head.splitlines() if ln.strip()), repr(head)
+        path = tmp_path / 'p.yaml'
+        path.write_text(text, encoding='utf-8')
+        assert load_params(path).line.V_l == p.line.V_l

@@ -195,3 +195,14 @@ def test_installed_command_exits_2_without_traceback(tmp_path):
     assert proc.returncode == 2
     assert proc.stderr.strip().startswith('error: ') and len(proc.stderr.splitlines()) == 1
     assert 'Traceback' not in proc.stderr
+
+
+def test_the_fit_report_says_where_it_came_from(bags, capsys, tmp_path):
+    from ..conftest import assert_provenance, ROOT
+    code, out, _ = _run(capsys, *bags, '--json', '--out', str(tmp_path / 'rep'), '--no-plots',
+                        '--no-progress')
+    assert code == 0
+    for prov in (json.loads(out)['provenance'],
+                 json.loads((tmp_path / 'rep' / 'result.json').read_text())['provenance']):
+        assert_provenance(prov, [ROOT / 'config' / 'pump.yaml'], ['fit'])
+    assert '## Provenance' in (tmp_path / 'rep' / 'report.md').read_text()

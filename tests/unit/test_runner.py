@@ -190,6 +190,28 @@ def test_lock_step_advances_one_period_per_command(params):
     assert len(seen) == 11 and seen[-1] == pytest.approx(0.05)
 
 
+def test_lock_step_sends_the_first_instant_again_to_a_controller_matched_late(params):
+    """A controller whose subscription matched just after the first instant went out misses
+    it (discovery is not symmetric): the first measurements go out again each second until
+    a command comes, unchanged, and the run goes on without waiting out its timeout."""
+    r = Runner(Simulator(params), cfg(lock_step=True, lock_step_timeout=30.0))
+    seen = []
+
+    def on_frame(sink, frame):
+        seen.append(frame.t)
+        if len(seen) == 1:
+            return          # not matched yet: this one went to nobody
+        k = int(round(frame.t / 0.005 * 1e3)) / 1e3
+        if k == int(k):
+            r.command(0.5)
+
+    sink = Sink(r, 12, on_frame)
+    run(r, sink)
+    assert r.stats['lock_step_timeouts'] == 0
+    assert seen[:2] == [0.0, 0.0] and sink.frames[0] is sink.frames[1]
+    assert seen[2] == pytest.approx(0.001)
+
+
 def test_lock_step_without_commands_times_out_and_counts(params):
     r = Runner(Simulator(params), cfg(lock_step=True, lock_step_timeout=0.01))
     sink = Sink(r, 11)

@@ -67,6 +67,15 @@ def test_tornado_names_mu_a_for_tau_and_not_the_line_volume(client, tmp_path):
     assert abs(s['line.V_l']) < 0.1
     html = (tmp_path / 'report.html').read_text()
     assert 'tornado' in html and html.count('data:image/png') >= 3
+    # Where it came from, on the page and in the numbers.
+    import json
+
+    from ..conftest import assert_provenance
+    assert '<h2>Provenance</h2>' in html
+    saved = json.loads((tmp_path / 'sensitivities.json').read_text())
+    assert saved['outputs']['fopdt_tau']['src']['actuator.mu_a'] == pytest.approx(
+        s['actuator.mu_a'])
+    assert_provenance(saved['provenance'])
 
 
 def _v_a0_spec():

@@ -58,8 +58,13 @@ def error_lines(exc: HydropumpError) -> list[str]:
 
 def main(argv=None) -> int:
     """Run ``hydropump`` with ``argv`` (default: the command line); the exit code."""
+    from .. import provenance
     try:
         args = build_parser().parse_args(argv)  # a refused number is a UsageError
+        if argv is not None:
+            # Called with its words (from Python, a test): they are the command its reports
+            # came from, not this process's.
+            provenance.COMMAND[:] = ['hydropump', *map(str, argv)]
         return args.func(args)
     except HydropumpError as exc:
         for line in error_lines(exc):

@@ -40,6 +40,7 @@ import re
 import sys
 import time
 
+from ..provenance import collect
 from ._common import (
     add_params_option,
     add_progress_option,
@@ -242,6 +243,7 @@ def _single(args) -> int:
     if show:
         print(file=sys.stderr)
     suggest(cal)
+    cal.provenance = collect(inputs)
     if not cal.improved:
         # No better than the start is no calibration: the report says why, and no params
         # file is left for a simulator to load. (Units were checked with the bags.)
@@ -325,6 +327,7 @@ def _fleet(args) -> int:
         cal = res.calibration
         if cal is not None:
             suggest(cal)
+            cal.provenance = collect([plant, args.profile, *res.sources])
             folder = outs[res.name].parent
             try:
                 folder.mkdir(parents=True, exist_ok=True)
@@ -354,7 +357,7 @@ def _fleet(args) -> int:
     finally:
         if ex is not None:
             ex.close()
-    paths = write_fleet_table(result, report)
+    paths = write_fleet_table(result, report, collect(inputs))
     if args.json:
         print(json.dumps({p.name: p.calibration.to_dict() if p.status == 'ok'
                           else {'status': p.status, 'reason': p.reason}
@@ -382,7 +385,7 @@ def _start_of(path: Path) -> Path | None:
 
 def cmd_validate(args) -> int:
     from ..ident.calibrate import write_validation_report
-    from ..ident.calibrate.writers import fit_table, misfit_table
+    from ..ident.calibrate.writers import fit_table, misfit_table, validation_dict
     plant = plant_file(args)
     before_file = Path(args.before) if args.before else _start_of(plant)
     if args.out:
@@ -394,15 +397,12 @@ def cmd_validate(args) -> int:
     from ..ident.calibrate import validate
     val = validate(recs, params, signals=args.signals, fit_delays=not args.no_delays,
                    before=before)
-    write_validation_report(val, out, str(plant), str(before_file) if before_file else None,
-                            plots=not args.no_plots)
+    prov = collect([plant, before_file, args.profile, *args.bags])
+    before_name = str(before_file) if before_file else None
+    write_validation_report(val, out, str(plant), before_name, plots=not args.no_plots,
+                            prov=prov)
     if args.json:
-        data = {'params': str(plant), 'fit_percent': val['fit'], 'misfit': val['misfit'],
-                'delays_s': val['delays']}
-        if before is not None:
-            data.update(before=str(before_file), fit_percent_before=val['fit_before'],
-                        misfit_before=val['misfit_before'])
-        print(json.dumps(data, indent=2))
+        print(json.dumps(validation_dict(val, str(plant), before_name, prov), indent=2))
         _warn_negative(val['fit'])
         return 0
     print(f'{plant} on {len(recs)} recordings' + (f' (before: {before_file})' if before_file

@@ -20,6 +20,7 @@ import time
 
 from hydropump_sim.files import write_text
 
+from ..provenance import collect
 from ._common import add_params_option, add_progress_option, plant_file, positive, run_dir
 
 
@@ -86,7 +87,8 @@ def cmd_fit(args) -> int:
     if args.matrix:
         return cmd_matrix(args)
     t0 = time.perf_counter()
-    params = load_params(plant_file(args))
+    plant = plant_file(args)
+    params = load_params(plant)
     recs = []
     for path, rec in zip(args.bags, read_recordings(
             args.bags, current_topic=args.current_topic, flow_topic=args.flow_topic,
@@ -108,6 +110,7 @@ def cmd_fit(args) -> int:
         recs, method=args.method, params=params, start=args.start, td_bounds=args.td_bounds,
         tau_bounds=args.tau_bounds, joint=False if args.no_joint else None,
         progress=args.progress, allow_flow_filter=args.allow_flow_filter, **kw)
+    ident.provenance = collect([plant, *args.bags])
     if args.json:
         print(to_json(ident))
     else:
@@ -147,7 +150,8 @@ def cmd_matrix(args) -> int:
     result = {'schema': 'hydropump-matrix/1', 'params': str(plant),
               'operating_current_A': current, 'units': MATRIX_UNITS,
               'elements': {k: dict(e.to_dict(), linearisation=lin.get(k))
-                           for k, e in fits.items()}}
+                           for k, e in fits.items()},
+              'provenance': collect([plant, *args.bags])}
     if args.out:
         out = run_dir(args.out, 'matrix')
         write_text(out / 'matrix.json', json.dumps(result, indent=2), 'result')

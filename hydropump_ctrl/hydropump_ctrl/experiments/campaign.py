@@ -35,6 +35,7 @@ from hydropump_sim.params import Params
 from hydropump_sim.scaling import current_for_displacement
 from hydropump_sim.sensors import SensorProfile
 
+from .. import provenance
 from ..ident import Recording
 from .closed_loop import disturbance_figures, trim_current
 from .experiment import EXCITATION_BASE, Experiment  # noqa: F401 (users import them here)
@@ -316,7 +317,7 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
                      started: float, starts: dict | None = None,
                      echo: Callable[[str], None] = print, pool=None,
                      calibrate: bool = False, fig1: Sequence[Experiment] = (),
-                     excavator: Sequence[Experiment] = ()) -> Path:
+                     excavator: Sequence[Experiment] = (), prov: dict | None = None) -> Path:
     """Stages 2, 4 and 5 of the demo on its bags: fit, model analysis, report.
 
     Parameters
@@ -347,6 +348,9 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
         of their own.
     excavator : sequence of Experiment
         The excavator's duty cycle, if it was run (:mod:`.excavator`), likewise.
+    prov : dict, optional
+        Where the run came from (:func:`..provenance.collect`): in ``summary.json`` and at
+        the end of the page.
     pool : concurrent.futures.Executor, optional
         Where the work that waits for nothing here runs beside the fit (the operating map
         and dither figures, the plant's twin); without one, all of it runs in turn.
@@ -457,9 +461,12 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
         sections = report.report_sections(ident, truth, rows, loop_results, modal, text, hyst,
                                           walls, fit_paths, figs, bag_dir, calibration, duty,
                                           dig)
+        if prov:
+            sections.append(('Provenance', provenance.html(prov)))
         page = report.write_html(run_dir, sections)
-        write_text(run_dir / 'summary.json', json.dumps(report.summary(
+        write_text(run_dir / 'summary.json', json.dumps({**report.summary(
             ident, truth, loop_results, walls, duty[0] if duty else None,
-            dig[0] if dig else None), indent=2) + '\n', 'summary')
+            dig[0] if dig else None), **({'provenance': prov} if prov else {})},
+            indent=2) + '\n', 'summary')
     echo(report.text_table(report.STAGE_HEAD, report.stage_rows(walls)))
     return page

@@ -127,6 +127,7 @@ class Identification:
     recordings: list = field(default_factory=list, repr=False)
     normalisation: dict = field(default_factory=dict)
     seconds: float = 0.0
+    provenance: dict | None = None     # where it came from (..provenance.collect)
 
     @property
     def G0(self) -> float:

@@ -22,6 +22,7 @@ import numpy as np
 
 from hydropump_sim.files import refuse_foreign, save_figure, write_text
 
+from .. import provenance
 from .diagnostics import FLAG_TEXT, FopdtFit
 from .model import PAPER, PARAMS
 from .pooling import Identification
@@ -106,7 +107,8 @@ def to_dict(ident: Identification) -> dict[str, Any]:
             'normalisation': {k: _num(v) if not isinstance(v, list) else [_num(x) for x in v]
                               for k, v in ident.normalisation.items()},
             'sets': [set_dict(f, r) for f, r in zip(ident.sets, recs)],
-            'pooled': pooled, 'paper': paper, 'seconds': _num(ident.seconds)}
+            'pooled': pooled, 'paper': paper, 'seconds': _num(ident.seconds),
+            **({'provenance': ident.provenance} if ident.provenance else {})}
 
 
 def to_json(ident: Identification, indent: int | None = 2) -> str:
@@ -198,6 +200,8 @@ def markdown(ident: Identification, figures: dict[str, list[str]] | None = None)
              ([r.truncation] if r.truncation else []) + list(r.notes)]
     if notes:
         lines += ['## Data notes', ''] + [f'- {nm}: {x}' for nm, x in notes] + ['']
+    if ident.provenance:
+        lines += provenance.markdown(ident.provenance)
     if figures:
         lines += ['## Figures', '']
         for name, files in figures.items():

@@ -25,6 +25,7 @@ import numpy as np
 
 from hydropump_sim import files
 
+from .. import provenance
 from .runs import STATUS_OK
 from .spec import Sweep
 
@@ -109,7 +110,9 @@ def write_report(sweep: Sweep, table: Path, out: Path) -> Path:
     cols = read_table(table)
     units = cols['__units__']
     sens = sensitivities(sweep, cols)
-    files.write_text(out / 'sensitivities.json', json.dumps(sens, indent=1), 'sensitivities')
+    prov = provenance.collect([sweep.source])
+    files.write_text(out / 'sensitivities.json', json.dumps(
+        {'outputs': sens, 'provenance': prov}, indent=1), 'sensitivities')
     outputs = list(sweep.columns())
     ok = cols['status'] == STATUS_OK
     n_ok, n = int(ok.sum()), len(ok)
@@ -203,6 +206,7 @@ def write_report(sweep: Sweep, table: Path, out: Path) -> Path:
         body += '<tr>' + ''.join(f'<td>{c}</td>' for c in cells) + '</tr>'
     parts.append('<h2>Worst runs</h2><table border=1 cellpadding=3><tr>' + head + '</tr>'
                  + body + '</table>')
+    parts.append('<h2>Provenance</h2>' + provenance.html(prov))
     return files.write_text(out / 'report.html',
                             '<!doctype html><meta charset="utf-8"><title>hydropump sweep'
                             '</title><body style="font-family:sans-serif">' + '\n'.join(parts)

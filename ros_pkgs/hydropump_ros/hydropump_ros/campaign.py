@@ -338,6 +338,21 @@ def _joined(beside, label: str, walls: dict, starts: dict) -> list:
     return experiments
 
 
+def _demo_files(args) -> list[Path]:
+    """The config files the demo's graphs read besides the pump and the bench: the
+    controllers and the circuits of the duty cycles that run."""
+    from hydropump_sim.circuit import default_circuit_path
+    from hydropump_sim.params import default_params_path
+    config = default_params_path().parent
+    out = [config / 'controller.yaml']
+    if args.fig1:
+        out += [default_circuit_path().with_name('fig1.yaml'), config / 'controller_fig1.yaml']
+    if args.excavator:
+        out += [default_circuit_path().with_name('excavator.yaml'),
+                config / 'controller_excavator.yaml']
+    return [p for p in out if p.is_file()]
+
+
 def _start_excavator(pool, run_dir: Path, profile_path: Path):
     """Submit the excavator's duty cycle's graph to ``pool``: its experiment and the future
     of :func:`run_graph`. The simulator runs config/circuits/excavator.yaml (its plant
@@ -369,6 +384,7 @@ def run(args, run_dir: Path) -> int:
         closed_loop_experiments,
         identification_experiments,
     )
+    from hydropump_ctrl.provenance import collect
     from hydropump_sim.params import default_params_path, load_params
     from hydropump_sim.sensors import load_profile
     t_all = time.perf_counter()
@@ -400,7 +416,9 @@ def run(args, run_dir: Path) -> int:
         # 3. Fitting, 4. model analysis, 5. report: no graph needed.
         page = analyse_campaign(run_dir, run_dir / 'bags', params, profile, idents, loops,
                                 walls, t_all, starts, echo=_progress, pool=pool,
-                                calibrate=args.calibrate, fig1=fig1, excavator=excavator)
+                                calibrate=args.calibrate, fig1=fig1, excavator=excavator,
+                                prov=collect([default_params_path(), profile_path,
+                                              *_demo_files(args)]))
     print(f'\nreport: {page.resolve()}\nbags: {(run_dir / "bags").resolve()}')
     return 0
 

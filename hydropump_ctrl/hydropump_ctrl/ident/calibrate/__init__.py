@@ -150,6 +150,7 @@ class Calibration:
     # The fixed parameters that would explain most of a misfit beyond the noise (.lacks).
     missing: list[dict] = field(default_factory=list)
     timing: str = ''                          # the bench's timing convention, in words
+    provenance: dict | None = None            # where it came from (..provenance.collect)
     predictions: list[dict[str, np.ndarray]] = field(default_factory=list, repr=False)
     predictions_before: list[dict[str, np.ndarray]] = field(default_factory=list, repr=False)
     experiments: list[Experiment] = field(default_factory=list, repr=False)
@@ -180,6 +181,7 @@ class Calibration:
                                 | {'noise_ratio': {s: list(v) for s, v in c['signals'].items()}}
                                 for c in self.missing],
             'timing': self.timing,
+            **({'provenance': self.provenance} if self.provenance else {}),
         }
 
     @property

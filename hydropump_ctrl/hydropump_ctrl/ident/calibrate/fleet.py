@@ -26,6 +26,7 @@ from hydropump_sim.errors import HydropumpError
 from hydropump_sim.params import Params
 from hydropump_sim.schema import spec_map
 
+from ... import provenance
 from ...batch import cluster_pays, cores, Executor, InProcess, open_executor
 from .data import CalibrationError
 from .engine import THREADS
@@ -290,9 +291,10 @@ def fleet_markdown(result: FleetResult) -> str:
     return '\n'.join(lines + ([''] + notes if notes else [])) + '\n'
 
 
-def write_fleet_table(result: FleetResult, out: str | Path) -> dict[str, Path]:
-    """``fleet.csv``, ``fleet.parquet`` (units in its metadata) and ``fleet.md`` in ``out``,
-    each written whole or not at all."""
+def write_fleet_table(result: FleetResult, out: str | Path, prov: dict | None = None
+                      ) -> dict[str, Path]:
+    """``fleet.csv``, ``fleet.parquet`` (units and ``prov``, the provenance, in its
+    metadata) and ``fleet.md`` in ``out``, each written whole or not at all."""
     import pyarrow as pa
     import pyarrow.parquet as pq
     out = Path(out)
@@ -301,7 +303,8 @@ def write_fleet_table(result: FleetResult, out: str | Path) -> dict[str, Path]:
                               for i in range(len(result.pumps))]
     paths = {'csv': files.write_text(out / 'fleet.csv', '\n'.join(csv) + '\n', 'fleet table')}
     table = pa.table({c: pa.array(v) for c, v in cols.items()}).replace_schema_metadata(
-        {'units': json.dumps(units), 'free': json.dumps(list(result.free))})
+        {'units': json.dumps(units), 'free': json.dumps(list(result.free)),
+         **({'provenance': json.dumps(prov)} if prov else {})})
     with files.replacing(out / 'fleet.parquet', 'fleet table') as tmp:
         pq.write_table(table, tmp)
     paths['parquet'] = out / 'fleet.parquet'
@@ -310,7 +313,7 @@ def write_fleet_table(result: FleetResult, out: str | Path) -> dict[str, Path]:
           + ', '.join(result.free) + f'; run on {result.where}, {result.wall_time:.1f} s.',
           '', 'Value +- standard error (relative standard error), SI units; in bold a '
           "parameter the pump's bags leave poorly determined (see its report.md).", '',
-          fleet_markdown(result)]
+          fleet_markdown(result)] + (provenance.markdown(prov) if prov else [])
     paths['md'] = files.write_text(out / 'fleet.md', '\n'.join(md), 'fleet table')
     result.table = paths
     return paths

@@ -20,6 +20,7 @@ from hydropump_sim import files
 from hydropump_sim.params import Params
 from hydropump_sim.schema import dump_ros_yaml, spec_map
 
+from ... import provenance
 from .data import CalibrationError
 from .engine import DERIVED
 
@@ -72,6 +73,10 @@ def write_params(cal, path, header_lines: Sequence[str] = ()) -> Path:
         lines.append(f'fit % {name}: ' + ', '.join(f'{s} {_pct(v)}' for s, v in per.items()))
     lines += [f'flag: {f}' for f in cal.flags]
     lines += list(header_lines)
+    if cal.provenance:
+        prov = cal.provenance
+        lines += [f'date {prov["date"]}, commit {prov["commit"] or "-"}',
+                  f'command: {prov["command"]}']
     comments = {p.name: f'calibrated (start {p.initial:.6g})' for p in cal.estimates}
     comments.update({n: f'tied: {DERIVED[n][1]}' for n in cal.tied})
     text = dump_ros_yaml(cal.params.flat(), header='\n'.join('# ' + ln for ln in lines),
@@ -306,6 +311,8 @@ def write_calibration_report(cal, out: Path, *, plots: bool = True) -> Path:
         md += ['## Flags', ''] + [f'- {f}' for f in cal.flags] + ['']
     if cal.notes:
         md += ['## Notes', ''] + [f'- {n}' for n in cal.notes] + ['']
+    if cal.provenance:
+        md += provenance.markdown(cal.provenance)
     if figs:
         md += ['## Figures', ''] + [f'![{f.stem}]({f.name})' for f in figs]
     return write_text(out / 'report.md', '\n'.join(md) + '\n', 'report')
@@ -324,15 +331,25 @@ def _missing_section(cal) -> list[str]:
             'the value the data suggest.', '']
 
 
-def write_validation_report(val: dict, out: Path, params_file: str,
-                            before_file: str | None = None, *, plots: bool = True) -> Path:
-    """``validation.json``, ``validation.md`` and the overlays of :func:`..validate`."""
-    out = Path(out)
+def validation_dict(val: dict, params_file: str, before_file: str | None = None,
+                    prov: dict | None = None) -> dict:
+    """The JSON form of a validation (``validation.json``, ``validate --json``)."""
     data = {'params': params_file, 'fit_percent': val['fit'], 'misfit': val['misfit'],
             'delays_s': val['delays']}
     if before_file:
         data.update(before=before_file, fit_percent_before=val['fit_before'],
                     misfit_before=val['misfit_before'])
+    if prov:
+        data['provenance'] = prov
+    return data
+
+
+def write_validation_report(val: dict, out: Path, params_file: str,
+                            before_file: str | None = None, *, plots: bool = True,
+                            prov: dict | None = None) -> Path:
+    """``validation.json``, ``validation.md`` and the overlays of :func:`..validate`."""
+    out = Path(out)
+    data = validation_dict(val, params_file, before_file, prov)
     write_text(out / 'validation.json', json.dumps(data, indent=2), 'validation result')
     figs = []
     if plots:
@@ -349,5 +366,7 @@ def write_validation_report(val: dict, out: Path, params_file: str,
           misfit_table(val['misfit'], val.get('misfit_before') if before_file else None), '',
           '## Fit %', '', fit_table(val['fit'], val.get('fit_before') if before_file else None),
           '']
+    if prov:
+        md += provenance.markdown(prov)
     md += [f'![{f.stem}]({f.name})' for f in figs]
     return write_text(out / 'validation.md', '\n'.join(md) + '\n', 'validation report')
