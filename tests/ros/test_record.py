@@ -105,6 +105,8 @@ def test_record_runs_a_plan_through_a_graph_of_its_own(tmp_path, ros_domain):
     rc, stdout, stderr = hydropump('record', str(plan), '--out', str(out))
     assert rc == 0, stdout + stderr
     assert stderr == ''
+    # Its graph in the ROS_DOMAIN_ID it was given (the session's), where one watches it.
+    assert f'(ROS domain {ros_domain}' in stdout, stdout
     check_bags(out, plan, stdout)
     assert {p.name for p in (out / 'logs').iterdir()} == {'simulator.log', 'controller.log',
                                                           'recorder.log'}

@@ -139,3 +139,23 @@ def test_the_reports_say_where_they_came_from(bag, tmp_path, capsys):
                  json.loads((val / 'validation.json').read_text())['provenance']):
         assert_provenance(prov, [rep / 'calibrated.yaml', start], ['validate'])
     assert '## Provenance' in (val / 'validation.md').read_text()
+
+
+def test_the_bench_profile_stays_out_of_the_calibrated_file(bag, tmp_path, capsys):
+    """calibrate --profile config/bench.yaml: the bench's dither is layered over the start
+    for the fit, as the simulator node layers it, but the calibrated file describes the pump:
+    its dither is the start's, and the header says why."""
+    from hydropump_sim.params import load_params
+    from hydropump_sim.sensors import load_profile
+    profile = ROOT / 'config' / 'bench.yaml'
+    over = load_profile(profile).plant_overrides
+    start = load_params(ROOT / 'config' / 'pump.yaml').flat()
+    assert any(over[k] != start[k] for k in over)   # the bench does change the plant
+    code = main(['calibrate', str(bag), '--free', 'line.mu_u', '--profile', str(profile),
+                 '--report', str(tmp_path / 'rep'), '--no-plots', '--no-progress'])
+    capsys.readouterr()
+    assert code == 0
+    out = tmp_path / 'rep' / 'calibrated.yaml'
+    written = load_params(out).flat()
+    assert all(written[k] == start[k] for k in over), {k: written[k] for k in over}
+    assert 'the profile keeps the bench' in out.read_text().split('/**')[0]

@@ -152,3 +152,38 @@ def test_design_from_a_fit_result_equals_design_with_its_numbers(tmp_path, capsy
         bad.write_text(text)
         assert main(['design', '--params', PUMP, '--from-fit', str(bad), '--dry-run']) == 2
         assert words in capsys.readouterr().err
+
+
+def test_design_from_a_flagged_fit_honours_its_flags(tmp_path, capsys):
+    """A fit whose delay sits on its bound (or that did not converge) is no model to design
+    on: refused in one line that names the flags in words, nothing written; a set of the
+    pooled mean so flagged refuses it too; a non-white residual is a note beside a design;
+    a file's non-positive number is refused without a unit hint the user never typed."""
+    import json
+
+    from hydropump_ctrl.ident.report import SCHEMA
+    res = tmp_path / 'result.json'
+    out = tmp_path / 'c.yaml'
+    cases = [
+        ({'G0': 98.0, 'tau': 0.11, 'td': 0.05,
+          'joint': {'G0': 97.0, 'tau': 0.105, 'td': 0.001, 'flags': ['td_on_lower_bound']}},
+         2, 'joint fit is flagged td_on_lower_bound (t_d is on its lower bound'),
+        ({'G0': 98.0, 'tau': 0.11, 'td': 0.05, 'joint': None,
+          'flagged_sets': {'run2': ['not_converged']}},
+         2, 'pooled mean is flagged not_converged (the optimiser stopped'),
+        ({'G0': 98.0, 'tau': -0.11, 'td': 0.05, 'joint': None},
+         2, 'the pooled mean gives tau = -0.11 s; a pump has a positive one'),
+        ({'G0': 98.0, 'tau': 0.11, 'td': 0.05,
+          'joint': {'G0': 97.0, 'tau': 0.105, 'td': 0.052, 'flags': ['residuals_not_white']}},
+         0, 'note: the joint fit of result.json is flagged residuals_not_white'),
+    ]
+    for pooled, code, words in cases:
+        res.write_text(json.dumps({'schema': SCHEMA, 'pooled': pooled}))
+        assert main(['design', '--params', PUMP, '--from-fit', str(res), '--out',
+                     str(out)]) == code
+        o, err = capsys.readouterr()
+        text = err if code else o
+        assert words in text, text
+        if code:
+            assert len(err.strip().splitlines()) == 1 and 'looks like' not in err
+            assert not out.exists()

@@ -61,7 +61,8 @@ def _progress_printer(enabled: bool | None):
     t0 = time.perf_counter()
 
     def show(text: str) -> None:
-        print(f'\r  calibrating: {text}, {time.perf_counter() - t0:.1f} s', end='',
+        # Back to the line's start, and cleared after the text (a shorter line follows).
+        print(f'\r  calibrating: {text}, {time.perf_counter() - t0:.1f} s\033[K', end='',
               file=sys.stderr, flush=True)
     return show
 
@@ -98,7 +99,8 @@ def _common(p, bags: str = '+') -> None:
     p.add_argument('--profile', metavar='FILE',
                    help='sensor profile the bags were recorded with (e.g. config/bench.yaml): '
                         'its plant settings (the dither) are layered over --params, as the '
-                        'simulator node layers them')
+                        'simulator node layers them, and left out of the calibrated file '
+                        '(it describes the pump; the profile keeps the bench)')
     p.add_argument('--signals', nargs='+', metavar='SIGNAL', choices=OUTPUT_SIGNALS,
                    help='compare these signals (default: those a bench measures that the bags '
                         f'have: {", ".join(BENCH_OUTPUT_SIGNALS)}; the simulator\'s exact '
@@ -173,6 +175,26 @@ def _plant(path, profile):
     return params
 
 
+def _plant_only(cal, plant, profile) -> tuple[object, list[str]]:
+    """What the calibrated file holds: ``cal.params`` with the bench's settings that
+    ``profile`` layered over the plant (its dither) back at the start file's values, unless
+    they were free (the file describes the pump; the profile keeps the bench), and the
+    header's line about it."""
+    if not profile:
+        return None, []
+    from hydropump_sim.params import load_params
+    from hydropump_sim.sensors import load_profile
+    over = load_profile(profile).plant_overrides or {}
+    own = load_params(plant).flat()
+    back = {k: own[k] for k in over if k not in cal.free}
+    if not back:
+        return None, []
+    return cal.params.replace(back), [
+        f'calibrated with the bench settings of {profile} layered over the start '
+        f'({", ".join(sorted(back))}); written here as the start has them: the profile '
+        'keeps the bench']
+
+
 def _priors(args):
     from ..ident.calibrate import parse_prior
     out = []
@@ -240,9 +262,9 @@ def _single(args) -> int:
     finally:
         if ex is not None:
             ex.close()
+    suggest(cal, show)
     if show:
         print(file=sys.stderr)
-    suggest(cal)
     cal.provenance = collect(inputs)
     if not cal.improved:
         # No better than the start is no calibration: the report says why, and no params
@@ -250,8 +272,8 @@ def _single(args) -> int:
         write_calibration_report(cal, report, plots=not args.no_plots)
         raise CalibrationError(f'{_not_improved(cal)}: no params file written; see '
                                f'{report}/report.md')
-    write_params(cal, out, [f'start: {plant}'] + ([f'layered with the plant settings of '
-                                                   f'{args.profile}'] if args.profile else []))
+    own, bench = _plant_only(cal, plant, args.profile)
+    write_params(cal, out, [f'start: {plant}', *bench], own)
     write_calibration_report(cal, report, plots=not args.no_plots)
     if args.json:
         print(json.dumps(cal.to_dict(), indent=2))
@@ -317,8 +339,7 @@ def _fleet(args) -> int:
     if errors:
         raise CalibrationError(errors)
     recs = read_fleet(pumps, lambda bags: _read(args, base, bags))
-    header = [f'start: {plant}'] + ([f'layered with the plant settings of {args.profile}']
-                                    if args.profile else [])
+    header = [f'start: {plant}']
     done = []
 
     def store(res):
@@ -338,8 +359,9 @@ def _fleet(args) -> int:
                 res.reason = f'{_not_improved(cal)}: no params file written'
 
             else:
+                own, bench = _plant_only(cal, plant, args.profile)
                 res.files.append(write_params(cal, outs[res.name], [
-                    *header, f'pump {res.name} of the fleet {args.fleet}']))
+                    *header, *bench, f'pump {res.name} of the fleet {args.fleet}'], own))
             write_calibration_report(cal, folder, plots=not args.no_plots)
             res.files.append(folder / 'report.md')
         done.append(res.name)

@@ -144,9 +144,19 @@ def design_report(cfg, params, sources: dict) -> str:
     return '\n'.join(lines)
 
 
-def fopdt_from_fit(path: str) -> tuple[float, float, float, str]:
-    """``(G0, tau, t_d, which)`` of a ``hydropump fit`` result file (schema
-    ``hydropump-fit/1``): the joint fit where there is one, else the pooled mean."""
+# A fit flagged so is no model to design on: its numbers sit on a bound, did not converge or
+# do not describe a pump (the other flags are told as notes).
+BLOCKING_FLAGS = ('td_on_lower_bound', 'td_on_upper_bound', 'tau_on_lower_bound',
+                  'tau_on_upper_bound', 'not_converged', 'nonpositive_gain', 'poor_fit')
+
+
+def fopdt_from_fit(path: str) -> tuple[float, float, float, str, list[str]]:
+    """``(G0, tau, t_d, which, notes)`` of a ``hydropump fit`` result file (schema
+    ``hydropump-fit/1``): the joint fit where there is one, else the pooled mean. Its flags
+    are honoured: one of :data:`BLOCKING_FLAGS` on the estimate taken (on any set, for the
+    pooled mean, which averages them) refuses the file with the flags in words; the others
+    come back as notes."""
+    from ..ident.diagnostics import FLAG_TEXT
     from ..ident.report import SCHEMA
     try:
         data = json.loads(Path(path).read_text(encoding='utf-8'))
@@ -163,7 +173,19 @@ def fopdt_from_fit(path: str) -> tuple[float, float, float, str]:
     vals = [src.get(k) for k in ('G0', 'tau', 'td')]
     if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in vals):
         raise UsageError(f'--from-fit {path}: the {which} has no finite G0, tau, td ({vals})')
-    return float(vals[0]), float(vals[1]), float(vals[2]), which
+    flags = {str(f) for f in (src.get('flags') or [])}
+    if which == 'pooled mean':
+        flags |= {str(f) for fl in (pooled.get('flagged_sets') or {}).values() for f in fl}
+    blocking = sorted(f for f in flags if f in BLOCKING_FLAGS)
+    if blocking:
+        raise UsageError(
+            f'--from-fit {path}: the {which} is flagged ' + '; '.join(
+                f'{f} ({FLAG_TEXT[f]})' for f in blocking)
+            + ': its numbers are no model to design on; fit again (see the fit report), or '
+            'give --G0, --tau and --t-d')
+    notes = [f'the {which} of {Path(path).name} is flagged {f}: {FLAG_TEXT.get(f, f)}'
+             for f in sorted(flags - set(blocking)) if f in FLAG_TEXT]
+    return float(vals[0]), float(vals[1]), float(vals[2]), which, notes
 
 
 def default_profile() -> Path:
@@ -193,28 +215,34 @@ def design_profile(args, params):
     return profile, path
 
 
-def identified_numbers(args) -> dict:
+def identified_numbers(args) -> tuple[dict, list[str]]:
     """eq. 19 numbers that replace the plant's: from ``--from-fit``, else ``--G0``, ``--tau``,
-    ``--t-d``; each ``name -> (value, source)``."""
+    ``--t-d``; each ``name -> (value, source)``, and the notes on them (a fit's flags)."""
+    notes: list[str] = []
     opts = {'G0': '--G0', 'tau': '--tau', 't_d': '--t-d'}
     units = {'G0': '% per current range', 'tau': 's', 't_d': 's'}
     if args.from_fit:
-        G0, tau, t_d, which = fopdt_from_fit(args.from_fit)
+        G0, tau, t_d, which, notes = fopdt_from_fit(args.from_fit)
         vals = {'G0': G0, 'tau': tau, 't_d': t_d}
         src = {k: f'eq. 19, {which} of {Path(args.from_fit).name}' for k in vals}
+        for k, v in vals.items():
+            # The file's numbers, not the user's: no hint about units they never typed.
+            if not (v > 0 or (k == 't_d' and v == 0)):
+                raise UsageError(f'--from-fit {args.from_fit}: the {which} gives {k} = {v:g} '
+                                 f'{units[k]}; a pump has a positive one')
     else:
         vals = {k: getattr(args, k) for k in opts if getattr(args, k) is not None}
         src = {k: f'eq. 19, {opts[k]} on the command line' for k in vals}
-    for k, v in vals.items():
-        positive(v, opts[k], units[k], zero=k == 't_d')
-    return {k: (v, src[k]) for k, v in vals.items()}
+        for k, v in vals.items():
+            positive(v, opts[k], units[k], zero=k == 't_d')
+    return {k: (v, src[k]) for k, v in vals.items()}, notes
 
 
 def cmd_design(args) -> int:
     from ..control.design import design_config, plant_model
     from ..control.schema import General
     t0 = time.perf_counter()
-    identified = identified_numbers(args)
+    identified, fit_notes = identified_numbers(args)
     base = overrides(args.set)
     plant = plant_file(args)
     default = (CONTROLLER_YAML if not args.circuit
@@ -247,7 +275,7 @@ def cmd_design(args) -> int:
             sources[key[len('model.'):]] = f'--set {key}'
     print(f'plant: {plant}; sensor profile: {prof_path}'
           + (f'; eq. 19 from {args.from_fit}' if args.from_fit else ''))
-    for note in pm.notes:
+    for note in [*fit_notes, *pm.notes]:
         print(f'note: {note}')
     print(flush=True)
     print(design_report(cfg, params, sources))

@@ -12,7 +12,7 @@ lowers the error by about 1/sqrt 2) and is named only if that is enough. The tab
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 import math
 
 import numpy as np
@@ -72,24 +72,41 @@ def experiment_information(params, free: Sequence[str], inputs: dict, sigma: dic
 RATE_RATIO = 2.0
 
 
+def candidate_information(params, free: Sequence[str], sigma: dict, dt: float = 1e-3,
+                          progress: Callable[[str], None] | None = None
+                          ) -> dict[str, tuple[np.ndarray, float]]:
+    """Per standard experiment the model can run at ``params``: its Fisher information
+    (:func:`experiment_information`) and its duration [s], sampled every ``dt``."""
+    out = {}
+    inputs = candidate_inputs(params, dt=dt)
+    for k, (name, inp) in enumerate(inputs.items()):
+        if progress:
+            progress(f'experiment design: {name} ({k + 1} of {len(inputs)})')
+        try:
+            out[name] = (experiment_information(params, free, inp, sigma, dt),
+                         inp['current'].size * dt)
+        except HydropumpError:   # a candidate the model cannot run is no candidate
+            continue
+    return out
+
+
 def separating_experiments(params, free: Sequence[str], information: np.ndarray,
                            direction: np.ndarray, sigma: dict, duration: float,
-                           dt: float = 1e-3) -> list[tuple[str, float]]:
+                           dt: float = 1e-3, candidates: dict | None = None
+                           ) -> list[tuple[str, float]]:
     """Which candidate experiments, added to recordings of Fisher ``information`` and
     ``duration`` seconds, determine ``direction`` (relative standard error below
     :data:`DETERMINED_REL_STD`) by information the recordings lack (at least
     :data:`RATE_RATIO` times theirs per second along it), with the standard error it would
-    have; each candidate sampled every ``dt`` as the recordings were."""
+    have; each candidate sampled every ``dt`` as the recordings were (``candidates``: their
+    :func:`candidate_information`, computed here when not given)."""
     good = []
     w = np.asarray(direction, float)
     w = w / np.linalg.norm(w)
     rate = float(w @ information @ w) / max(duration, 1e-9)
-    for name, inputs in candidate_inputs(params, dt=dt).items():
-        try:
-            cand = experiment_information(params, free, inputs, sigma, dt)
-        except HydropumpError:   # a candidate the model cannot run is no candidate
-            continue
-        t_c = inputs['current'].size * dt
+    if candidates is None:
+        candidates = candidate_information(params, free, sigma, dt)
+    for name, (cand, t_c) in candidates.items():
         var = float(w @ np.linalg.pinv(information + cand) @ w)
         new = float(w @ cand @ w) / t_c >= RATE_RATIO * rate
         if new and var > 0 and math.sqrt(var) < DETERMINED_REL_STD:
@@ -111,10 +128,12 @@ def experiment_table(params, free: Sequence[str], sigma: dict) -> dict[str, dict
     return out
 
 
-def suggest(cal: Calibration) -> None:
+def suggest(cal: Calibration, progress: Callable[[str], None] | None = None) -> None:
     """Name, for every weak or held direction of ``cal``, the standard experiments that would
     determine it (``separated_by`` of each entry of ``cal.weak`` and ``cal.held``, and a
-    flag); the Fisher information of the recordings is the one at the estimate."""
+    flag); the Fisher information of the recordings is the one at the estimate. The
+    candidates' information is computed once for all directions (``progress`` is told as
+    each is simulated)."""
     dirs = cal.weak + cal.held
     if not dirs:
         return
@@ -123,9 +142,10 @@ def suggest(cal: Calibration) -> None:
              for s in {s for e in exps for s in e.measured}}
     duration = sum(e.duration for e in exps)
     dt = float(np.median([e.dt for e in exps]))
+    cands = candidate_information(cal.params, cal.free, sigma, dt, progress)
     for u in dirs:
         sep = separating_experiments(cal.params, cal.free, cal.information,
-                                     np.array(u['direction']), sigma, duration, dt)
+                                     np.array(u['direction']), sigma, duration, dt, cands)
         u['separated_by'] = [name for name, _ in sep]
         u['separated_stderr'] = {name: se for name, se in sep}
         cal.flags.append(f'to determine {", ".join(u["parameters"])}, add: '

@@ -247,7 +247,9 @@ def run_graph(stages: dict[str, list[Experiment]], run_dir: Path, log_dir: Path,
     topics = LOOP_TOPICS if topics is None else topics
     walls, starts = {}, {}
     where = f' ({tag.strip(" []")})' if tag else ''  # which graph, in a failure's line
-    with own_domain() as did:
+    # The main graph in the user's ROS_DOMAIN_ID when they set one; a graph beside it (a
+    # tag) in one of its own.
+    with own_domain(user=not tag) as did:
         # rclpy's own signal handlers would shut the context down under a running
         # experiment (an RCLError): a signal unwinds this run instead (Stopped).
         orch = Orchestrator(signals=False)

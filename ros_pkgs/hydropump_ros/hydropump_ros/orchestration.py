@@ -24,6 +24,7 @@ import os
 from pathlib import Path
 import random
 import signal
+import socket
 import subprocess
 import time
 from typing import TYPE_CHECKING
@@ -36,6 +37,10 @@ if TYPE_CHECKING:  # light to import: a signal handler of the run uses stop()
 
 class GraphError(HydropumpError):
     """A failure of the graph that ends the run: one line for the user."""
+
+
+# The largest ROS_DOMAIN_ID (DDS ports for a domain above it fall outside the port range).
+MAX_DOMAIN_ID = 232
 
 
 # ---- a stop by signal -----------------------------------------------------------------------
@@ -599,17 +604,41 @@ def run_experiments(graph: Graph, exps: list[Experiment], bag_dir: Path,
     return out
 
 
-def own_domain():
+def own_domain(user: bool = True):
     """A context: a ROS domain of this host that no other graph of the domain coordinator
-    holds (its number), with localhost discovery set for the processes started in it."""
+    holds (its number), with localhost discovery set for the processes started in it. With
+    ``user`` and ``ROS_DOMAIN_ID`` set, that domain instead, the user's choice (they watch it
+    from another terminal, or a test session chose it): held too where no one holds it, so
+    that coordinated graphs keep out of it, and used as it is where its chooser holds it.
+    Graphs started beside another (the demo's) take ``user=False``."""
     from domain_coordinator import domain_id
-    first = random.randrange(100)
+    from domain_coordinator.impl import PORT_BASE
+    wanted = os.environ.get('ROS_DOMAIN_ID', '').strip() if user else ''
+    if wanted and not (wanted.isdigit() and int(wanted) <= MAX_DOMAIN_ID):
+        raise GraphError(f'ROS_DOMAIN_ID={wanted}: expected a whole number from 0 to '
+                         f'{MAX_DOMAIN_ID}')
 
     @contextlib.contextmanager
-    def held():
-        with domain_id(lambda s=[first]: (s.__setitem__(0, s[0] + 1) or s[0] % 100 + 1)) \
-                as did:
+    def users():
+        did = int(wanted)
+        sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        try:
+            with contextlib.suppress(OSError):   # held already: by whoever chose it
+                sock.bind(('', PORT_BASE + did))
+            os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+            yield did
+        finally:
+            sock.close()
+
+    @contextlib.contextmanager
+    def coordinated():
+        state = [random.randrange(100)]
+
+        def pick() -> int:
+            state[0] += 1
+            return state[0] % 100 + 1
+        with domain_id(pick) as did:
             os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
             os.environ['ROS_DOMAIN_ID'] = str(did)
             yield did
-    return held()
+    return users() if wanted else coordinated()

@@ -59,9 +59,10 @@ def estimate_text(p) -> str:
     return text
 
 
-def write_params(cal, path, header_lines: Sequence[str] = ()) -> Path:
-    """The calibrated parameters as a params file in the form of ``config/pump.yaml``, with a
-    header that says where they came from."""
+def write_params(cal, path, header_lines: Sequence[str] = (), params: Params | None = None
+                 ) -> Path:
+    """The calibrated parameters (``params``, default ``cal.params``) as a params file in
+    the form of ``config/pump.yaml``, with a header that says where they came from."""
     lines = ['Calibrated by hydropump calibrate from:']
     lines += [f'  {s}' for s in cal.sources]
     for p in cal.estimates:
@@ -79,7 +80,8 @@ def write_params(cal, path, header_lines: Sequence[str] = ()) -> Path:
                   f'command: {prov["command"]}']
     comments = {p.name: f'calibrated (start {p.initial:.6g})' for p in cal.estimates}
     comments.update({n: f'tied: {DERIVED[n][1]}' for n in cal.tied})
-    text = dump_ros_yaml(cal.params.flat(), header='\n'.join('# ' + ln for ln in lines),
+    text = dump_ros_yaml((params or cal.params).flat(),
+                         header='\n'.join('# ' + ln for ln in lines),
                          comments=comments, specs=spec_map(Params))
     return write_text(path, text, 'params file')
 
