@@ -215,6 +215,44 @@ def test_gaps_in_sequence_numbers_are_counted_as_lost(tmp_path):
     assert info['custom_data']['lost./a'] == '2'
 
 
+def test_a_stop_time_the_run_never_reaches_ends_the_bag_where_the_run_stopped(
+        tmp_path, monkeypatch):
+    """A stop at a stop_time the run never reaches (it paused earlier, or ended): once
+    /clock has been quiet for SHORT_OF_STOP_TIME the bag ends at the latest /clock, whole,
+    nothing counted as lost, and its drain says so; not after the 30 s bound with the
+    messages up to the stop_time "estimated" as lost."""
+    import time as real
+
+    from hydropump_ctrl.recorder import session
+    now = [0.0]
+
+    class Steady:
+        @staticmethod
+        def monotonic():
+            return now[0]
+        time_ns = staticmethod(real.time_ns)
+    monkeypatch.setattr(session, 'time', Steady)
+    cfg = build(RecorderConfig, {'output': str(tmp_path / 'bag'), 'topics': ['/a']})
+    rec = Recorder(cfg, ['/a'], Graph(), log=lambda *a: None)
+    rec.start()
+    for k in range(1, 11):
+        rec.clock(_clock(k * MS), {'source_timestamp': 100 * k})
+        rec.message('/a', False, _float(), {'source_timestamp': 100 * k + 1,
+                                            'publication_sequence_number': k})
+        rec.advance(1)
+    assert rec.request_stop(30.0, until_ns=1000 * 10 ** 9)     # stop_time = 1000 s
+    while rec.stopping and now[0] < 30.0:
+        now[0] += 0.05
+        rec.advance(1)
+    assert now[0] == pytest.approx(session.SHORT_OF_STOP_TIME, abs=0.2)
+    path, count = rec.finish_stop()
+    told = yaml.safe_load((path / 'metadata.yaml').read_text())[
+        'rosbag2_bagfile_information']['custom_data']
+    assert count == 10 and told['messages_lost'] == '0'
+    assert told['drain'].startswith('complete; the run stopped at t = 0.01 s, before '
+                                    'stop_time = 1000 s'), told['drain']
+
+
 # ---- a write that fails ----------------------------------------------------------------------
 
 _FULL_DISK = """

@@ -258,6 +258,10 @@ SIM_STAMP = 86_400 * 10 ** 9
 # two heartbeats of the publishers, config/fastdds.xml, which bring a stalled reader's
 # repairs); /clock that quiet during a stop: the simulator is paused or gone.
 QUIET = 0.3
+# s of no new /clock after which a stop at a ``stop_time`` the run has not reached takes the
+# run as stopped short of it (paused earlier, ended): the bag ends at its latest /clock. Far
+# longer than QUIET: a lock-step run waiting for a slow controller is not a stopped one.
+SHORT_OF_STOP_TIME = 2.0
 # s: a pass of the take loop later than this after the previous one is a stall of the
 # recorder; silence counts at most this much of it.
 STALL = 0.05
@@ -276,6 +280,7 @@ class _Stop:
     idle: float = 0.0         # running s since the request with nothing taken
     last_pass: float | None = None
     cut: bool = False         # the bound came first: the caller counts what is left
+    short: str = ''           # the run stopped short of stop_time: where, in words
 
     def tick(self, now: float) -> None:
         if self.last_pass is not None:
@@ -440,6 +445,15 @@ class Recorder:
                 self._undecided_stop(s, st, now)
             return
         s.seq.pass_done()
+        if st is not None and st.until is not None and s.seq.mode == 'sim' and \
+                st.clock_quiet >= SHORT_OF_STOP_TIME and not st.short:
+            latest = s.seq.time.latest
+            if latest is not None and latest < s.stop_at:
+                # Never reached: the bag ends where the run did, and nothing after it was
+                # lost (no tail is estimated up to a stop_time nobody published).
+                st.short = (f'the run stopped at t = {latest / 1e9:.6g} s, before stop_time '
+                            f'= {st.until / 1e9:.6g} s: the bag ends there')
+                s.stop_at = latest
         if st is not None and s.stop_at is None and s.seq.mode == 'sim':
             s.stop_at = self._stop_instant(s, st)
             if s.stop_at is None:
@@ -451,7 +465,7 @@ class Recorder:
         if st is None:
             return
         if self._drained(s, st):
-            self._finish(st.reason, 'complete')
+            self._finish(st.reason, f'complete; {st.short}' if st.short else 'complete')
         elif now > st.deadline:
             st.cut = True
 
