@@ -622,7 +622,10 @@ def _make(name: str, entry: Any, kinds: dict, plant: dict | None, sets: dict[str
     ports = _ports(name, cls.PORTS, entry.get('ports'), errors)
     if ports is None:
         return None
-    return cls(name, params, ports, fluid)
+    comp = cls(name, params, ports, fluid)
+    problems = comp.port_problems()
+    errors += problems
+    return None if problems else comp
 
 
 def _ports(name: str, specs: tuple[PortSpec, ...], given: Any, errors: list[str]

@@ -302,6 +302,20 @@ def test_shuttle_network(bench, base):
                 assert v < eq['sh.pressure'] and eq[f'sh_{i + 1}.flow'] == 0.0
 
 
+def test_a_shuttle_network_bleeding_to_no_tank_is_refused(tmp_path):
+    """Its tank port is optional only without a bleed: a bleed with nowhere to drain would
+    leave the load-sensing line at the highest pressure it ever saw (a loaded machine gone
+    idle at full LS pressure). One line names the port and the two ways out."""
+    net = {k: copy.deepcopy(BENCH[k]) for k in ('sh_1', 'sh_2', 'sh_3', 'sh')}
+    del net['sh']['ports']['tank']
+    with pytest.raises(CircuitError) as exc:
+        load_circuit(write_circuit(tmp_path, 'no_tank', FLUID, net))
+    (line,) = [ln for ln in exc.value.lines if 'sh:' in ln]
+    assert 'port tank is not connected' in line and 'A_bleed: 0' in line, exc.value.lines
+    net['sh']['A_bleed'] = 0.0
+    load_circuit(write_circuit(tmp_path, 'no_bleed', FLUID, net))
+
+
 def test_cylinder(bench, base, steps):
     """Truth: statics of cylinder.py, P_a A_a = F + c v, the feed orifice passing A_a v
     (solved by brentq, 0.5 %); the position grows at that velocity in a run."""

@@ -213,6 +213,11 @@ class Component:
 
     # ---- structure ------------------------------------------------------------------------
 
+    def port_problems(self) -> list[str]:
+        """One line per way its optional ports are left open that its parameters do not
+        allow (a bleed with no tank to drain to); empty when they are fine."""
+        return []
+
     def states(self) -> tuple[StateSpec, ...]:
         return ()
 

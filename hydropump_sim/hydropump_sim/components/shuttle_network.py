@@ -70,7 +70,8 @@ class ShuttleNetwork(Component):
     doc = 'shuttle valves: the highest load pressure to the load-sensing line, with a bleed'
     Params = ShuttleParams
     PORTS = (PortSpec('out', 'load-sensing line (P_LS)'),
-             PortSpec('tank', 'bleed outlet', optional=True),
+             PortSpec('tank', 'bleed outlet (may be left out only with A_bleed: 0)',
+                      optional=True),
              PortSpec('in', 'the sensed load nodes', many=True))
     SIGNALS = (SignalSpec('pressure', 'Pa', 'load-sensing pressure P_LS'),
                SignalSpec('selected', '-', 'index of the highest input'),
@@ -80,6 +81,15 @@ class ShuttleNetwork(Component):
     kernel = kernel
     ROLES = frozenset({'ls_sensor'})
     MEASURES = {'ls_pressure': 'pressure'}
+
+    def port_problems(self):
+        if 'tank' in self.ports or self.params.A_bleed == 0.0:
+            return []
+        # Without it the bleed drains nowhere: the line would hold the highest pressure it
+        # ever saw, not follow a falling load.
+        return [f'{self.name}: A_bleed = {self.params.A_bleed:g} m^2 bleeds the load-sensing '
+                'line to tank, but port tank is not connected: connect it, or set A_bleed: 0 '
+                '(no bleed: the line then holds the highest pressure it saw)']
 
     def pack(self):
         r = self.params
