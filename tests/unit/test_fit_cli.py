@@ -206,3 +206,20 @@ def test_the_fit_report_says_where_it_came_from(bags, capsys, tmp_path):
                  json.loads((tmp_path / 'rep' / 'result.json').read_text())['provenance']):
         assert_provenance(prov, [ROOT / 'config' / 'pump.yaml'], ['fit'])
     assert '## Provenance' in (tmp_path / 'rep' / 'report.md').read_text()
+
+
+def test_growing_and_falling_flow_sets_are_not_pooled(tmp_path, capsys):
+    """A set whose steps all go up (eq. 14's branch) and one whose steps all go down (eq.
+    15's) have different time constants: pooled, their mean is neither. Refused in one line
+    naming the sets of each branch; each branch alone fits."""
+    up = syn.make_record(TRUTH, seed=3, duration=8.0, name='up',
+                         steps=[(0.0, 0.3), (2.0, 0.45), (4.0, 0.6), (6.0, 0.75)])
+    down = syn.make_record(TRUTH, seed=4, duration=8.0, name='down',
+                           steps=[(0.0, 0.75), (2.0, 0.6), (4.0, 0.45), (6.0, 0.3)])
+    bags = [str(recording_to_bag(r, tmp_path / r.name, start_s=50.0)) for r in (up, down)]
+    code, _, err = _run(capsys, *bags, '--no-report', '--no-progress')
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert 'mix growing-flow steps (up) and falling-flow steps (down)' in err, err
+    for bag in bags:
+        code, _, err = _run(capsys, bag, '--no-report', '--no-progress')
+        assert code == 0, err

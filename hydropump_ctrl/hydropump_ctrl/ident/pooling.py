@@ -23,7 +23,14 @@ from .fit import blas_single_threaded, fit_recording
 from .model import PARAMS
 from .recording import DEFAULT_CURRENT_TOPIC, DEFAULT_FLOW_TOPIC, read_recordings
 from .robust import solve_bounded, Window
-from .signals import check_data, default_bounds, detect_dither, load_default_params, normalise
+from .signals import (
+    check_data,
+    default_bounds,
+    detect_dither,
+    find_steps,
+    load_default_params,
+    normalise,
+)
 
 
 @dataclass
@@ -143,6 +150,33 @@ class Identification:
 
 
 @blas_single_threaded
+def branch(rec, params) -> str:
+    """Which branch of the flow's response a recording's current steps excite: 'growing'
+    (every step up: eq. 14's time constant), 'falling' (every step down: eq. 15's), 'both'
+    (or none found)."""
+    u, _ = normalise(rec, params)
+    _, sizes = find_steps(u, rec.dt)
+    if sizes.size and np.all(sizes > 0):
+        return 'growing'
+    if sizes.size and np.all(sizes < 0):
+        return 'falling'
+    return 'both'
+
+
+def refuse_mixed_branches(recordings: Sequence, params) -> None:
+    """One line when some recordings step the flow only up and others only down: eqs. 14
+    and 15 give the two branches different time constants, and a mean of both is neither
+    (59.5 +- 47 ms from a 100 ms and a 20 ms set)."""
+    kinds: dict[str, list[str]] = {}
+    for k, rec in enumerate(recordings):
+        kinds.setdefault(branch(rec, params), []).append(rec.name or f'set {k + 1}')
+    if kinds.get('growing') and kinds.get('falling'):
+        raise FitError(f'the sets mix growing-flow steps ({", ".join(kinds["growing"])}) and '
+                       f'falling-flow steps ({", ".join(kinds["falling"])}): eqs. 14 and 15 '
+                       'give the two branches different time constants, and a mean of both '
+                       'is neither; fit each branch on its own')
+
+
 def fit_recordings(recordings: Sequence, *, method: str = 'robust', params=None,
                    start: Sequence[float] | None = None, td_bounds=None, tau_bounds=None,
                    joint: bool | None = None, progress: bool | None = False,
@@ -176,6 +210,7 @@ def fit_recordings(recordings: Sequence, *, method: str = 'robust', params=None,
     t0 = time.perf_counter()
     params = load_default_params() if params is None else params
     recordings = [rec.with_roles(current=current, flow=flow) for rec in recordings]
+    refuse_mixed_branches(recordings, params)
     fits = []
     for rec in tqdm(recordings, desc='fit', unit='set', disable=not progress if progress
                     is not None else None, leave=False):
