@@ -307,6 +307,15 @@ def _simulate(models: list[Model], duration, inputs, x0s, dt_out, dt_max, method
 _CHUNK = 20000
 
 
+def failure_text(status: int) -> str:
+    """Why the stepper stopped, in words (its status code)."""
+    return {ig.FAIL_STEP: 'step size underflow (the model changes faster than h_min '
+                          'resolves: a stiff or discontinuous right-hand side)',
+            ig.FAIL_NAN: 'non-finite state (a parameter or input far outside its range?)',
+            ig.FAIL_STEPS: 'too many steps in one increment (max_steps)'}.get(
+                status, f'stepper status {status}')
+
+
 def run_model(model: tuple, X0, dt, U, P, rtol, config, decim, Y, X, stats, t0=0.0,
               own_jacobian=False):
     """The stepper's :func:`~hydropump_sim.integrator.run` of a model
@@ -332,9 +341,8 @@ def run_model(model: tuple, X0, dt, U, P, rtol, config, decim, Y, X, stats, t0=0
                 'simulated second; a nominal run takes about 10000); check parameters near '
                 'the ends of their ranges')
         if status != ig.OK:
-            why = {ig.FAIL_STEP: 'step size underflow', ig.FAIL_NAN: 'non-finite state',
-                   ig.FAIL_STEPS: 'too many steps in one increment'}[status]
-            raise IntegrationError(f'integration failed at t = {t_fail:.6g} s: {why}')
+            raise IntegrationError(f'integration failed at t = {t_fail:.6g} s: '
+                                   f'{failure_text(status)}')
         x = X[:, r1].copy()
         elapsed = time.perf_counter() - t_wall
         if elapsed > config.time_budget and r1 < n_out:
@@ -485,7 +493,8 @@ class Simulator:
                                self._h, cfg.rtol, cfg.h_min, cfg.max_steps, self.stats, False,
                                self.model.n_signals)
         if status != ig.OK:
-            raise IntegrationError(f'integration failed at t = {t0:.6g} s (code {status})')
+            raise IntegrationError(f'integration failed at t = {t0:.6g} s of simulation time: '
+                                   f'{failure_text(status)}')
         self.x = x[0]
         self._h = h
         self.steps += 1

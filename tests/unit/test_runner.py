@@ -357,3 +357,17 @@ def test_step_costs_are_reported_against_the_period_and_overruns_warn(params):
     assert d['step_budget'] == pytest.approx(1e-6)
     assert d['overruns'] >= 19
     assert [t for lvl, t in logs if lvl == 'warn' and 'over its 0.001 ms period' in t]
+
+
+def test_an_integration_failure_says_why_in_words_on_the_simulation_clock(params):
+    """A stepper failure is reported at the simulation time the user sees, with its reason
+    in words (it was a status code)."""
+    from hydropump_sim.simulate import IntegrationError
+    sim = Simulator(params)
+    for _ in range(3):
+        sim.step()
+    sim.u[0] = math.nan           # what no range check lets through: a NaN inside
+    with pytest.raises(IntegrationError) as exc:
+        sim.step()
+    assert str(exc.value) == ('integration failed at t = 0.003 s of simulation time: '
+                              'non-finite state (a parameter or input far outside its range?)')
