@@ -193,3 +193,12 @@ def test_the_report_says_where_it_came_from(demo):
                                         ROOT / 'config' / 'circuits' / 'fig1.yaml'],
                       ['--quick'])
     assert '<h2>Provenance</h2>' in (out / 'report.html').read_text()
+
+
+def test_every_figure_says_what_it_shows(demo):
+    """Each figure of the page is captioned with what it shows, not with its file's name."""
+    import re
+    out, _, _ = demo
+    captions = re.findall(r'<figcaption>(.*?)</figcaption>', (out / 'report.html').read_text())
+    assert len(captions) >= 8
+    assert not [c for c in captions if c.endswith('.png')], captions

@@ -241,11 +241,45 @@ def summary(ident, truth: dict, loops: dict, walls: dict, duty: dict | None = No
 
 # ---- the page -------------------------------------------------------------------------------
 
+# What each figure of the page shows, by its file's stem (or the stem's start).
+CAPTIONS = {
+    'fig5': "Fig. 5: each set's flow with the identified eq. 19 and the simplified model's "
+            '(the first set whole, the others around their largest up-step)',
+    'fig6': 'Fig. 6: the estimation error of every set (its envelope over the record)',
+    'compare_': 'A calibration bag: measured, the model from the start (dashed) and '
+                'calibrated, and the residuals',
+    'bode': 'Current to line flow: the fine model, the simplified one (section IV) and the '
+            'identified eq. 19',
+    'operating_map': 'eq. 19 of the noise-free fine model over load pressure and '
+                     'displacement',
+    'dither_sensitivity': 'The growing-flow time constant against dither amplitude and '
+                          'frequency',
+    'steps': 'Step responses up and down: the fine and the simplified model',
+    'hysteresis': 'Current-flow hysteresis with and without Coulomb friction',
+    'emc_vs_pi': 'EMC against PI through the nodes: the flow step, the aperture step and the '
+                 'margin step',
+    'fig1_pre': 'Fig. 1 with pre-compensated sections, under EMC and under the '
+                'hydromechanical compensator: pressures, flows, commands',
+    'fig1_post': 'Fig. 1 with post-compensated sections (flow sharing), under EMC and under '
+                 'the hydromechanical compensator: pressures, flows, commands',
+    'excavator': "The excavator's cycle: pressures, actuator speeds against demand, the "
+                 'energy account',
+}
+
+
+def caption(path: Path) -> str:
+    """What a figure shows (:data:`CAPTIONS`), else its file's name."""
+    stem = path.stem
+    key = max((k for k in CAPTIONS if stem == k or stem.startswith(k)), key=len, default=None)
+    return CAPTIONS[key] if key else path.name
+
+
 def _img(path: Path) -> str:
-    """A PNG file inlined as a figure (the page stands on its own)."""
+    """A PNG file inlined as a figure (the page stands on its own), captioned with what it
+    shows."""
     data = base64.b64encode(path.read_bytes()).decode()
-    return (f'<figure><img src="data:image/png;base64,{data}" alt="{path.name}">'
-            f'<figcaption>{html.escape(path.name)}</figcaption></figure>')
+    return (f'<figure><img src="data:image/png;base64,{data}" alt="{html.escape(path.name)}">'
+            f'<figcaption>{html.escape(caption(path))}</figcaption></figure>')
 
 
 def _table(head, rows) -> str:

@@ -8,9 +8,10 @@ The simulator owns simulation time (it publishes /clock): the controller and the
 follow it whatever use_sim_time says (docs/ros.md, "rules of time"); use_sim_time only changes
 the ROS clock of the nodes. Several pumps share a ROS domain in namespaces of their own
 (``namespace:=pump1``, ``namespace:=pump2``: each has its /<ns>/clock); two simulators in
-one namespace are refused. Without ros2 launch, ``hydropump-graph`` starts the same graph with the same
-arguments. Bags go to ``bag`` (an absolute path, or relative to the folder ros2 launch runs
-in); empty: ``bags/recorder_<time>`` there. The recorder logs the absolute path.
+one namespace are refused. Without ros2 launch, ``hydropump-graph`` starts the same graph
+with the same arguments. Bags go to ``bag`` (an absolute path, or relative to the folder
+ros2 launch runs in); empty: ``bags/recorder_<time>`` there. The recorder logs the absolute
+path.
 """
 
 import os
