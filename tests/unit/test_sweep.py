@@ -301,3 +301,34 @@ def test_bad_morris_blocks_are_refused_in_one_line_each():
     assert any('morris.r = 0: zero samples' in ln for ln in lines), lines
     assert any('morris.levels = 3: expected an even whole number' in ln for ln in lines)
     assert any('unknown key(s) steps' in ln for ln in lines)
+
+
+@pytest.mark.skipif(__import__('shutil').which('chromium') is None,
+                    reason='no Chromium on this machine (make installs it)')
+def test_the_report_of_a_wide_sweep_fits_a_1400_px_window(client, tmp_path):
+    """Fourteen inputs and nine outputs: the worst-runs table has many columns. Opened in
+    Chromium at 1400 px, the page is no wider than the window (a wide table scrolls in its
+    own box) and every figure decodes."""
+    import shutil
+
+    from playwright.sync_api import sync_playwright
+    names = ['actuator.mu_a', 'line.V_l', 'line.mu_u', 'actuator.P_a_bar', 'spool.K_a',
+             'plate.K_b', 'plate.c_a', 'fluid.beta', 'spool.c_c', 'spool.m_c', 'plate.m_a',
+             'actuator.V_a0', 'plate.S_d', 'spool.K_c']
+    sw = spec(latin_hypercube={'n': 8, 'seed': 5, 'relative': True,
+                               'bounds': {n: [0.95, 1.05] for n in names}},
+              outputs=['fopdt', {'peak': 'P_l'}, {'final': 'q_l'}, {'peak': 'P_a'},
+                       {'final': 'P_a'}])
+    run_sweep(sw, tmp_path, client=client, progress=False, report=True)
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=shutil.which('chromium'),
+                                    args=['--no-sandbox'])
+        try:
+            page = browser.new_page(viewport={'width': 1400, 'height': 900})
+            page.goto((tmp_path / 'report.html').resolve().as_uri(), wait_until='load')
+            width = page.evaluate('document.documentElement.scrollWidth')
+            images = page.eval_on_selector_all('img', 'els => els.map(e => e.naturalWidth)')
+        finally:
+            browser.close()
+    assert width <= 1400, width
+    assert images and all(w > 300 for w in images), images

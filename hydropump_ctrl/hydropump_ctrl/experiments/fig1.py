@@ -29,6 +29,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+import textwrap
 
 import numpy as np
 
@@ -317,7 +318,9 @@ def plot(runs: Mapping[str, DutyRun], kind: str, path: Path, overlap: Mapping[st
     axes[3].set_xlabel('time in the duty cycle [s]')
     for ax in axes:
         ax.legend(fontsize=7, ncol=3, loc='upper left')
-    axes[0].set_title(f'Fig. 1 duty cycle, {kind}-compensated sections: '
-                      + '; '.join(f'{a:g} s {name}' for name, a, _ in PHASES[1:]), fontsize=8)
+    # Wrapped: the phases in one line ran off both ends of the figure.
+    title = (f'Fig. 1 duty cycle, {kind}-compensated sections: '
+             + '; '.join(f'{a:g} s {name}' for name, a, _ in PHASES[1:]))
+    axes[0].set_title('\n'.join(textwrap.wrap(title, 110)), fontsize=8)
     fig.tight_layout()
     save(plt, fig, path)

@@ -101,6 +101,13 @@ def _png(fig) -> str:
     return '<img src="data:image/png;base64,' + base64.b64encode(buf.getvalue()).decode() + '">'
 
 
+# The page fits a laptop's window: figures scale down, a wide table scrolls in its own box
+# (a sweep of many inputs and outputs has many columns).
+PAGE_CSS = ('body{font-family:sans-serif;max-width:1300px;margin:auto;padding:0 1em}'
+            'img{max-width:100%;height:auto}table{display:block;max-width:100%;'
+            'overflow-x:auto;border-collapse:collapse}td,th{padding:3px 6px}')
+
+
 def write_report(sweep: Sweep, table: Path, out: Path) -> Path:
     """``out/report.html`` and ``out/sensitivities.json``."""
     import matplotlib
@@ -209,7 +216,7 @@ def write_report(sweep: Sweep, table: Path, out: Path) -> Path:
     parts.append('<h2>Provenance</h2>' + provenance.html(prov))
     return files.write_text(out / 'report.html',
                             '<!doctype html><meta charset="utf-8"><title>hydropump sweep'
-                            '</title><body style="font-family:sans-serif">' + '\n'.join(parts)
+                            '</title><style>' + PAGE_CSS + '</style><body>' + '\n'.join(parts)
                             + '</body>', 'report')
 
 
