@@ -58,6 +58,9 @@ soak: $(STAMP)
 	HYDROPUMP_SIGNAL_LOOPS=10 HYDROPUMP_SOAK=20 $(BIN)/python -m pytest -q \
 		tests/ros/test_seams.py::test_every_node_ends_cleanly_on_ctrl_c_twice_and_sigterm \
 		tests/ros/test_recorder.py -k 'ctrl_c or bit_identical'
+	# The nodes and the main job with every core kept busy (a shared CI machine).
+	$(BIN)/python tests/loaded.py -- $(BIN)/python -m pytest -q -n 2 --dist loadfile \
+		tests/ros tests/e2e
 
 clean:
 	rm -rf $(VENV) build install log out
