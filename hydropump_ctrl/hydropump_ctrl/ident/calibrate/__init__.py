@@ -416,7 +416,10 @@ def calibrate(recordings: Sequence, base: Params, free: Sequence[str], *,
         if any(m['ratio'] > MISFIT_RATIO for per in cal.misfit.values() for m in per.values()):
             recorded = ['load_pressure'] if any(e.load_pressure is not None for e in exps) \
                 else []
-            cal.missing = missing(prob, z, cal.params, free, recorded)
+            try:
+                cal.missing = missing(prob, z, cal.params, free, recorded)
+            except HydropumpError as exc:   # an analysis beside the result, never its end
+                cal.notes.append(f'what the model lacks was not judged: {exc}')
         return cal
     finally:
         engine.close()
@@ -452,7 +455,10 @@ def _considered(prob: Problem, z: np.ndarray, Jr: np.ndarray, params: Params,
     theta = np.array([float(params.flat()[n]) for n in names])
     # The considered spread in each constant's own search coordinate.
     sd = np.array([CONSIDERED[n] for n in names]) * theta / coords.dtheta_dz(theta)
-    Jc = columns(prob, params, names)
+    try:
+        Jc = columns(prob, params, names)
+    except HydropumpError:
+        return np.zeros(len(free))
     _, Jn = prob.sensitivities(z)
     if Jn.shape[1]:
         Q, _ = np.linalg.qr(Jn)

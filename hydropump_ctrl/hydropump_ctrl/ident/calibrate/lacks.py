@@ -70,7 +70,17 @@ def columns(prob: Problem, params: Params, names: Sequence[str]) -> np.ndarray:
     """The sensitivity columns of the weighted residuals to ``names`` at ``params`` (the
     fitted delays and offsets held), in their search coordinates
     (:class:`.problem.Coordinates`), from copies of the plant stepped with the calibrated
-    run."""
+    run. A parameter whose perturbed set the schema refuses (a cross-check at its edge) gets
+    a zero column: it explains nothing here."""
+    try:
+        return _columns(prob, params, names)
+    except HydropumpError:
+        if len(names) == 1:
+            return np.zeros((prob.n_rows, 1))
+        return np.hstack([columns(prob, params, [n]) for n in names])
+
+
+def _columns(prob: Problem, params: Params, names: Sequence[str]) -> np.ndarray:
     coords = Coordinates.of(params, names)
     engine = Engine(params, names, prob.exps, rtol=prob.engine.rtol,
                     executor=prob.engine.executor)
