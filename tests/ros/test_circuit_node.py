@@ -73,7 +73,7 @@ class Flow:
 
 
 def test_fig1_boom_flow_from_its_command_topic_and_its_live_input(nodes, test_node):
-    from rcl_interfaces.srv import SetParameters
+    from rcl_interfaces.srv import GetParameters, SetParameters
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
     nodes.start('simulator', '-p', f'circuit_file:={FIG1}', '-p', f'circuit_sets:={LS_PUMP}')
@@ -92,6 +92,14 @@ def test_fig1_boom_flow_from_its_command_topic_and_its_live_input(nodes, test_no
                'the boom valve to open to 0.6')
     q = flow.settled(test_node, boom_flow(0.6), each=open_boom)
     assert q == pytest.approx(boom_flow(0.6), rel=REGULATION)
+    # What the topic set, the parameter reads (ros2 param get agrees with ros2 topic pub).
+    getp = test_node.create_client(GetParameters, 'simulator/get_parameters')
+
+    def reads():
+        res = call(test_node, getp, GetParameters.Request(names=['inputs.boom.command']))
+        return res.values[0].double_value
+    spin_until(test_node, lambda: open_boom() or reads() == pytest.approx(0.6), 10,
+               'inputs.boom.command to read what the topic set')
 
     # The live operator input: the same input, now 0.3 as a parameter, halves it. The
     # publisher leaves first, so that no command in flight overrides the parameter.

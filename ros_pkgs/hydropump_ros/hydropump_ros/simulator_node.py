@@ -59,6 +59,8 @@ from .conversions import event as event_message
 DISCOVERY_WINDOW = 3.0
 # The prefix of the circuit's operator inputs as live parameters (inputs.boom.command).
 INPUTS = 'inputs.'
+# s of steady clock between two mirrors of the command topics into their parameters.
+MIRROR_PERIOD = 0.1
 # The runner's events (its stats keys) as the suite's event kinds.
 EVENT_KINDS = {'lock_step_timeouts': LOCK_STEP_TIMEOUT, 'watchdog_trips': SAFE_CURRENT}
 
@@ -90,9 +92,16 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         self._pub_x = {t.topic: self.create_publisher(
             FluidPressure if t.kind == 'pressure' else Float64, t.topic, qos)
             for t in readout.topics}
+        # A command topic's value shows as its live parameter too (ros2 param get agrees
+        # with ros2 topic pub), mirrored at most every MIRROR_PERIOD: a parameter event per
+        # message of a 1 kHz command would flood /parameter_events.
+        self._mirror: dict[str, float] = {}
         for topic, name in readout.commands:
             self.create_subscription(Float64, topic,
-                                     lambda m, n=name: self.runner.set_input(n, m.data), 10)
+                                     lambda m, n=name: self._on_command(n, m.data), 10)
+        if readout.commands:
+            self.create_timer(MIRROR_PERIOD, self._mirror_commands,
+                              clock=RosClock(clock_type=ClockType.STEADY_TIME))
         self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._pub_events = self.create_publisher(DiagnosticArray, EVENTS, EVENTS_QOS)
         # The command has an executor of its own: what a lock-step exchange waits for.
@@ -205,6 +214,20 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         entry.log(self.get_logger(), level, text)
 
     # ---- services and parameters (executor thread) --------------------------------------
+
+    def _on_command(self, name: str, value: float) -> None:
+        self.runner.set_input(name, value)
+        self._mirror[f'{INPUTS}{name}'] = value
+
+    def _mirror_commands(self) -> None:
+        """The latest value of each command topic as its ``inputs.<name>`` parameter (a value
+        outside its range, which the plant clamps, is left unmirrored)."""
+        from rclpy.parameter import Parameter
+        pending, self._mirror = self._mirror, {}
+        changed = [Parameter(k, value=float(v)) for k, v in pending.items()
+                   if self.has_parameter(k) and self.get_parameter(k).value != v]
+        if changed:
+            self.set_parameters(changed)
 
     def _on_reset(self, request, response):
         self.runner.reset()
