@@ -57,6 +57,8 @@ from .conversions import event as event_message
 # (seen on a loaded machine: 2.9 s), so the look lasts that long. Two simulators started
 # within it of each other both refuse; a later one refuses alone.
 DISCOVERY_WINDOW = 3.0
+# s it looks on once its own publishers exist (two simulators started together).
+CONFIRM_WINDOW = 0.5
 # The prefix of the circuit's operator inputs as live parameters (inputs.boom.command).
 INPUTS = 'inputs.'
 # s of steady clock between two mirrors of the command topics into their parameters.
@@ -82,16 +84,11 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                          history=HistoryPolicy.KEEP_ALL if self.cfg.lock_step
                          else HistoryPolicy.KEEP_LAST)
-        self._pub_clock = self.create_publisher(Clock, CLOCK, qos)
-        self._pub_p = {k: self.create_publisher(FluidPressure, k, qos) for k in PRESSURE_SIGNALS}
-        self._pub_f = {k: self.create_publisher(Float64, k, qos) for k in FLOW_SIGNALS}
-        self._pub_js = self.create_publisher(JointState, 'joint_states', qos)
-        self._pub_i = self.create_publisher(Float64, 'solenoid_current', qos)
-        # What the circuit adds: its load-sensing pressure, each load's signals and command.
+        self._qos = qos
+        # Its topics' publishers come once it knows it is alone in its namespace
+        # (_advertise): a refused second simulator never shows a writer to the graph (a
+        # controller or recorder would take a new /clock writer for a new simulator).
         readout = self.runner.readout
-        self._pub_x = {t.topic: self.create_publisher(
-            FluidPressure if t.kind == 'pressure' else Float64, t.topic, qos)
-            for t in readout.topics}
         # A command topic's value shows as its live parameter too (ros2 param get agrees
         # with ros2 topic pub), mirrored at most every MIRROR_PERIOD: a parameter event per
         # message of a 1 kHz command would flood /parameter_events.
@@ -103,7 +100,6 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
             self.create_timer(MIRROR_PERIOD, self._mirror_commands,
                               clock=RosClock(clock_type=ClockType.STEADY_TIME))
         self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self._pub_events = self.create_publisher(DiagnosticArray, EVENTS, EVENTS_QOS)
         # The command has an executor of its own: what a lock-step exchange waits for.
         self._io = entry.SideExecutor(self)
         self._cmd = self._io.subscribe(Float64, 'solenoid_current_cmd',
@@ -115,12 +111,27 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
                           clock=RosClock(clock_type=ClockType.STEADY_TIME))
         self._make_messages()
         self._started = time.monotonic()
+        self._advertised: float | None = None    # steady s its publishers were made
         self._other_since: float | None = None
         self._alone = threading.Event()
         self._alone_timer = self.create_timer(0.1, self._check_alone,
                                               clock=RosClock(clock_type=ClockType.STEADY_TIME))
         self._thread = threading.Thread(target=self._run, name='stepper', daemon=True)
         self._thread.start()
+
+    def _advertise(self) -> None:
+        """The publishers of its topics: /clock, the measurements, ``joint_states``, what
+        the circuit adds (its load-sensing pressure, each load's signals), the events."""
+        qos = self._qos
+        self._pub_clock = self.create_publisher(Clock, CLOCK, qos)
+        self._pub_p = {k: self.create_publisher(FluidPressure, k, qos) for k in PRESSURE_SIGNALS}
+        self._pub_f = {k: self.create_publisher(Float64, k, qos) for k in FLOW_SIGNALS}
+        self._pub_js = self.create_publisher(JointState, 'joint_states', qos)
+        self._pub_i = self.create_publisher(Float64, 'solenoid_current', qos)
+        self._pub_x = {t.topic: self.create_publisher(
+            FluidPressure if t.kind == 'pressure' else Float64, t.topic, qos)
+            for t in self.runner.readout.topics}
+        self._pub_events = self.create_publisher(DiagnosticArray, EVENTS, EVENTS_QOS)
 
     def _configure(self) -> None:
         d = bridge.Declarer(self)
@@ -267,7 +278,9 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         ~/ready sees only its side), the events writer every reader the graph shows (an event
         of the first instants reaches the bag), and in lock-step the command's writer is
         matched (a command sent before is lost, and the run would wait
-        ``lock_step_timeout``)."""
+        ``lock_step_timeout``). Before its publishers exist (alone not yet known), nothing."""
+        if not self._alone.is_set():
+            return
         pubs = [self._pub_clock, self._pub_js, *self._pub_p.values(), *self._pub_f.values()]
         want = self.runner.cfg.wait_subscribers
         end = time.monotonic() + limit
@@ -317,17 +330,25 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         """Refuse to run beside another simulator of the same namespace: its clock would jump
         back and forth."""
         now = time.monotonic()
-        if now > self._started + DISCOVERY_WINDOW and self._other_since is None:
+        # First it looks without a writer of its own: a simulator joining a running one is
+        # refused before the graph sees anything of it. Then it advertises and looks
+        # CONFIRM_WINDOW more: two started together see each other's writers then.
+        if self._advertised is None:
+            if now > self._started + DISCOVERY_WINDOW and self._other_since is None:
+                self._advertise()
+                self._advertised = now
+                return
+        elif now > self._advertised + CONFIRM_WINDOW and self._other_since is None:
             self.destroy_timer(self._alone_timer)
             self._alone.set()
             return
         others = [f'{i.node_namespace.rstrip("/")}/{i.node_name}'
                   for i in self.get_publishers_info_by_topic(CLOCK)]
-        # Leave out this node's own writer, once: a second simulator of the same name in the
-        # same namespace is another one too.
-        own = f'{self.get_namespace().rstrip("/")}/{self.get_name()}'
-        if own in others:
-            others.remove(own)
+        if self._advertised is not None:
+            # Leave out its own writer, once: another of the same name is another one too.
+            own = f'{self.get_namespace().rstrip("/")}/{self.get_name()}'
+            if own in others:
+                others.remove(own)
         if not others or self._closing:
             return
         # A writer is discovered before its node's name is: wait a little for the name.
