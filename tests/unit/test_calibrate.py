@@ -474,6 +474,9 @@ def test_the_command_names_the_missing_effects_and_still_writes_its_file(lacking
         # Some signal's residual falls markedly (in units of its noise).
         assert max(a - b for a, b in c['noise_ratio'].values()) > 0.3, c
     assert result['fit_percent']['load_steps']['line_flow'] is None
+    # Experiment design is no answer to a model that misses something: its lines say so.
+    design = [f for f in result['flags'] if f.startswith('to determine')]
+    assert all('first free what the model lacks' in f for f in design), design
     md = (report / 'report.md').read_text()
     assert '## What the model may lack' in md
     assert all(f'freeing {n}' in md for n in EFFECTS)

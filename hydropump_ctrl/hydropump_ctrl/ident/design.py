@@ -148,10 +148,14 @@ def suggest(cal: Calibration, progress: Callable[[str], None] | None = None) -> 
                                      np.array(u['direction']), sigma, duration, dt, cands)
         u['separated_by'] = [name for name, _ in sep]
         u['separated_stderr'] = {name: se for name, se in sep}
+        # A weak direction of a model that misses something is no question of data yet.
+        first = (f' (first free what the model lacks: {cal.missing[0]["parameter"]}; its '
+                 'misfit weakens these estimates more than the data do)'
+                 if cal.missing else '')
         cal.flags.append(f'to determine {", ".join(u["parameters"])}, add: '
                          + (', '.join(f'{n} ({100 * se:.2g} %)' for n, se in sep) if sep
                             else 'none of the standard experiments adds what these recordings '
                             f'lack with these signals at {1 / dt:.4g} Hz (longer recordings '
                             'of the same kind lower the error as one over the square root of '
                             'their length; else sample faster, measure another signal, or '
-                            'give a prior)'))
+                            'give a prior)') + first)
