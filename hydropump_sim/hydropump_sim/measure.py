@@ -31,7 +31,10 @@ class SignalInfo:
     symbols, what kind of quantity it is, and how the simulator node publishes it (topic,
     message type, ``joint_states`` entry). ``held`` signals are piecewise constant between
     samples (the applied current); ``bench`` says whether a test bench measures it (the
-    spool and plate positions are the simulator's exact states, which no bench has)."""
+    spool and plate positions are the simulator's exact states, which no bench has).
+    ``display`` is how reports show it (scale from SI, unit); ``plausible`` the range a
+    controller takes a sample from (SI, pressures absolute, as the topics carry them),
+    ``None`` where it takes none."""
 
     output: str | None       # None: the input P_u
     unit: str
@@ -42,27 +45,41 @@ class SignalInfo:
     entry: str | None = None
     held: bool = False
     bench: bool = True
+    display: tuple[float, str] = (1.0, '')
+    plausible: tuple[float, float] | None = None
+
+
+# Display units and plausible ranges by kind (a flow in L/min, within 100 L/s either way; a
+# pressure in bar, absolute from 0 to 1000 bar; a current in A, 0 to 10 A).
+_FLOW = {'display': (6.0e4, 'L/min'), 'plausible': (-0.1, 0.1)}
+_PRESSURE = {'display': (1e-5, 'bar'), 'plausible': (0.0, 1.0e8)}
+_POSITION = {'display': (1e3, 'mm')}
 
 
 # The one table of the measured signals; every other list of them is derived from it.
 SIGNALS = {
     'solenoid_current': SignalInfo('I_s', 'A', 'solenoid current I_s', 'current',
-                                   'solenoid_current', held=True),
-    'pump_flow': SignalInfo('Q_p', 'm^3/s', 'pump flow Q_p', 'flow', 'pump_flow'),
-    'line_flow': SignalInfo('q_l', 'm^3/s', 'line flow q_l', 'flow', 'line_flow'),
-    'load_flow': SignalInfo('Q_load', 'm^3/s', 'load flow Q_load', 'flow', 'load_flow'),
+                                   'solenoid_current', held=True, display=(1.0, 'A'),
+                                   plausible=(0.0, 10.0)),
+    'pump_flow': SignalInfo('Q_p', 'm^3/s', 'pump flow Q_p', 'flow', 'pump_flow', **_FLOW),
+    'line_flow': SignalInfo('q_l', 'm^3/s', 'line flow q_l', 'flow', 'line_flow', **_FLOW),
+    'load_flow': SignalInfo('Q_load', 'm^3/s', 'load flow Q_load', 'flow', 'load_flow',
+                            **_FLOW),
     'actuator_pressure': SignalInfo('P_a', 'Pa', 'actuator pressure P_a', 'pressure',
-                                    'actuator_pressure', FLUID_PRESSURE),
+                                    'actuator_pressure', FLUID_PRESSURE, **_PRESSURE),
     'line_pressure': SignalInfo('P_l', 'Pa', 'line pressure P_l', 'pressure',
-                                'line_pressure', FLUID_PRESSURE),
+                                'line_pressure', FLUID_PRESSURE, **_PRESSURE),
     'load_pressure': SignalInfo(None, 'Pa', 'load pressure P_u', 'pressure', 'load_pressure',
-                                FLUID_PRESSURE),
+                                FLUID_PRESSURE, **_PRESSURE),
     'spool_position': SignalInfo('x_c', 'm', 'spool position x_c', 'position', 'joint_states',
-                                 JOINT_STATE, 'spool', bench=False),
+                                 JOINT_STATE, 'spool', bench=False, **_POSITION),
     'actuator_position': SignalInfo('x_a', 'm', 'actuator position x_a', 'position',
                                     'joint_states', JOINT_STATE, 'swash_plate_actuator',
-                                    bench=False),
+                                    bench=False, **_POSITION),
 }
+# A load-sensing circuit's highest load pressure (Pa, absolute on its topic): not a signal
+# of the pump's bench, but what a controller in margin mode takes as the load pressure.
+LS_PRESSURE_SIGNAL = 'ls_pressure'
 # Measured signal -> model output (``None``: the input P_u).
 SIGNAL_OUTPUTS = {name: info.output for name, info in SIGNALS.items()}
 PRESSURE_SIGNALS = tuple(n for n, i in SIGNALS.items() if i.kind == 'pressure')
@@ -97,8 +114,9 @@ def model_topics(model) -> tuple[list[Topic], list[tuple[str, str]]]:
     signals of the suite (the paper's load) adds none."""
     topics: list[Topic] = []
     m = model.measured()
-    if 'ls_pressure' in m:
-        topics.append(Topic('ls_pressure', m['ls_pressure'], 'pressure', 'line_pressure'))
+    if LS_PRESSURE_SIGNAL in m:
+        topics.append(Topic(LS_PRESSURE_SIGNAL, m[LS_PRESSURE_SIGNAL], 'pressure',
+                            'line_pressure'))
     commands = []
     measured = set(m.values())
     for name, sig in model.loads().items():

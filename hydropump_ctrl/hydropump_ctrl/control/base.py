@@ -25,25 +25,23 @@ from collections.abc import Mapping
 import math
 from typing import Any
 
+from hydropump_sim.measure import LS_PRESSURE_SIGNAL, SIGNALS
 from hydropump_sim.params import ParamError
 
 from .embedded import PumpModel
 from .excitation import ExcitationSignal
 from .schema import ControllerConfig, MODES, specs
 
-MEASUREMENTS = {
-    'line_flow': 'm^3/s', 'pump_flow': 'm^3/s', 'load_flow': 'm^3/s', 'line_pressure': 'Pa',
-    'load_pressure': 'Pa', 'ls_pressure': 'Pa', 'actuator_pressure': 'Pa',
-    'solenoid_current': 'A',
-}
+MEASUREMENTS = {**{name: info.unit for name, info in SIGNALS.items() if info.bench},
+                LS_PRESSURE_SIGNAL: 'Pa'}
 
 
 def sensed_load(meas: Mapping[str, float]) -> Mapping[str, float]:
     """The measurements with the load-sensing pressure as the load pressure wherever a
     circuit has one: margin mode then regulates ``P_l - P_LS``, the highest load's."""
-    if finite_value(meas, 'ls_pressure') is None:
+    if finite_value(meas, LS_PRESSURE_SIGNAL) is None:
         return meas
-    return {**meas, 'load_pressure': meas['ls_pressure']}
+    return {**meas, 'load_pressure': meas[LS_PRESSURE_SIGNAL]}
 
 
 def finite_value(meas: Mapping[str, float] | None, name: str) -> float | None:

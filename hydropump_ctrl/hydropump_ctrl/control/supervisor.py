@@ -28,6 +28,7 @@ import math
 import time
 from typing import Any
 
+from hydropump_sim.measure import SIGNALS
 from hydropump_sim.schema import group, ParamError, replace, spec
 
 from ..timebase import TimeBase
@@ -36,9 +37,8 @@ from .schema import ControllerConfig, validate_parameter
 
 # Plausible ranges of the measurements as the nodes publish them (SI, absolute pressures):
 # outside them a sample is a sensor fault.
-PLAUSIBLE = {'line_flow': (-0.1, 0.1), 'pump_flow': (-0.1, 0.1), 'load_flow': (-0.1, 0.1),
-             'solenoid_current': (0.0, 10.0), 'line_pressure': (0.0, 1.0e8),
-             'load_pressure': (0.0, 1.0e8), 'actuator_pressure': (0.0, 1.0e8)}
+# The range a sample is taken from, per signal (SI, pressures absolute): the signal table's.
+PLAUSIBLE = {name: info.plausible for name, info in SIGNALS.items() if info.plausible}
 STATE_KEYS = ('reference', 'estimate', 'disturbance', 'command', 'command_desired')
 
 

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from hydropump_sim import files
+from hydropump_sim.measure import SIGNALS
 from hydropump_sim.params import Params
 from hydropump_sim.schema import dump_ros_yaml, spec_map
 
@@ -27,14 +28,9 @@ from .engine import DERIVED
 #: The kind and version of a calibration's result.json (its first key).
 SCHEMA = 'hydropump-calibration/1'
 
-# Display units of the compared signals: (scale from SI, unit).
-DISPLAY = {'line_flow': (6.0e4, 'L/min'), 'pump_flow': (6.0e4, 'L/min'),
-           'load_flow': (6.0e4, 'L/min'), 'line_pressure': (1e-5, 'bar'),
-           'actuator_pressure': (1e-5, 'bar'), 'spool_position': (1e3, 'mm'),
-           'actuator_position': (1e3, 'mm')}
-SI_UNITS = {'line_flow': 'm^3/s', 'pump_flow': 'm^3/s', 'load_flow': 'm^3/s',
-            'line_pressure': 'Pa', 'actuator_pressure': 'Pa', 'spool_position': 'm',
-            'actuator_position': 'm'}
+# Display and SI units of the compared signals, from the one table of the signals.
+DISPLAY = {name: info.display for name, info in SIGNALS.items()}
+SI_UNITS = {name: info.unit for name, info in SIGNALS.items()}
 
 
 def write_text(path, text: str, what: str) -> Path:
