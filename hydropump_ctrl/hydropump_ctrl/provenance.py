@@ -6,6 +6,7 @@ when its tracked files differ from it; ``None`` outside a git checkout), the ver
 Python and of the libraries the results depend on, and each input file with its size and
 SHA-256 (a bag folder with its size only: hashing gigabytes would cost more than the run).
 :func:`markdown` and :func:`html` render it; every text is escaped where it is rendered.
+The commit and the versions are read once a process (a fleet writes a report per pump).
 Nothing here imports ROS.
 """
 
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from datetime import datetime, UTC
+import functools
 import hashlib
 import html as html_
 from importlib import metadata
@@ -34,6 +36,7 @@ HASHED_BYTES = 64 << 20
 COMMAND: list[str] = []
 
 
+@functools.cache
 def _commit() -> str | None:
     """The suite's commit, ``-dirty`` when tracked files differ; None outside a checkout."""
     if not (ROOT / '.git').exists():
@@ -52,6 +55,7 @@ def _commit() -> str | None:
     return head.stdout.strip() + ('-dirty' if dirty.stdout.strip() else '')
 
 
+@functools.cache
 def _versions() -> dict[str, str]:
     out = {'python': platform.python_version()}
     for name in LIBRARIES:
@@ -101,7 +105,7 @@ def collect(inputs: Sequence = (), argv: Sequence[str] | None = None) -> dict:
         files.append(_file(Path(p)))
     return {'date': datetime.now(UTC).isoformat(timespec='seconds'),
             'command': shlex.join(str(a) for a in argv), 'commit': _commit(),
-            'versions': _versions(), 'inputs': files}
+            'versions': dict(_versions()), 'inputs': files}
 
 
 def _input_text(f: dict) -> str:

@@ -359,9 +359,7 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         self.get_logger().error(
             f'another node publishes {self.resolve_topic_name(CLOCK)} in this ROS domain'
             f'{" (" + ", ".join(named) + ")" if named else ""}: one simulator per namespace '
-            '(give each pump its own namespace, or its own ROS_DOMAIN_ID)'
-            + ('; it had already taken steps: the other one was discovered late'
-               if self._alone.is_set() else ''))
+            '(give each pump its own namespace, or its own ROS_DOMAIN_ID)')
         self.exit_code = 2
         self.destroy_timer(self._alone_timer)
         self.runner.stop()

@@ -269,12 +269,17 @@ def _nuisance_tables(prob: Problem, nuis) -> tuple[dict, dict]:
     return delays, offsets
 
 
+def _recorded(exps) -> list[str]:
+    """The model inputs the recordings carry besides the current."""
+    return ['load_pressure'] if any(e.load_pressure is not None for e in exps) else []
+
+
 def _prepare(recordings, base, free, signals, offsets, priors) -> list[Experiment]:
     errors = check_signals(signals)
     if errors:
         raise CalibrationError(errors)
     exps = [experiment_from(r, base, signals) for r in recordings]
-    recorded = ['load_pressure'] if any(e.load_pressure is not None for e in exps) else []
+    recorded = _recorded(exps)
     errors = check_free(base, free, recorded) + excitation_check(exps)
     errors += [f'--offset {s}: not a compared signal of these recordings (compared: '
                f'{", ".join(sorted({x for e in exps for x in e.measured}))})'
@@ -414,8 +419,7 @@ def calibrate(recordings: Sequence, base: Params, free: Sequence[str], *,
                       method, t_wall, model_se)
         cal.cost_start = cost_start
         if any(m['ratio'] > MISFIT_RATIO for per in cal.misfit.values() for m in per.values()):
-            recorded = ['load_pressure'] if any(e.load_pressure is not None for e in exps) \
-                else []
+            recorded = _recorded(exps)
             try:
                 cal.missing = missing(prob, z, cal.params, free, recorded)
             except HydropumpError as exc:   # an analysis beside the result, never its end
