@@ -206,6 +206,11 @@ def _check_bag(bag: Path, t0: float) -> None:
             meta['message_count'] > 0
         cmds = [(m.log_time * 1e-9, d.data) for _, ch, m, d in
                 reader.iter_decoded_messages(topics=['/solenoid_current_cmd'])]
+    # Every topic that holds messages names the QoS its publishers offered (a recorder that
+    # registered channels before discovery reported their publishers wrote none).
+    for entry in meta['topics_with_message_count']:
+        if entry['message_count']:
+            assert entry['topic_metadata']['offered_qos_profiles'], entry
     t, i = np.array(cmds).T
     rel = t - t0
     assert rel[0] >= -1e-9 and 2 * DWELL <= rel[-1] < PLAN[0]['duration'], (rel[0], rel[-1])

@@ -375,3 +375,36 @@ def test_a_bag_name_too_long_is_one_line_not_a_traceback(tmp_path):
     with pytest.raises(BagError, match='cannot create the bag: File name too long'):
         open_unique(tmp_path / ('a' * 300))
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_topic_whose_publisher_is_discovered_late_gets_its_qos_in_the_bag(tmp_path):
+    """Into a running graph the first messages can come before discovery has reported every
+    publisher: such a topic's channel waits for its own first message (a channel's QoS
+    cannot change once written), and a topic that never sends is still listed at close."""
+    known = {'/a'}
+
+    class LateGraph(Graph):
+        def offered_qos(self, topic):
+            return super().offered_qos(topic) if topic in known else []
+
+    topics = ['/a', '/b', '/c']
+    cfg = build(RecorderConfig, {'output': str(tmp_path / 'bag'), 'topics': topics})
+    rec = Recorder(cfg, topics, LateGraph(topics), log=lambda *a: None)
+    rec.start()
+    for k in range(1, 6):
+        if k == 3:
+            known.add('/b')  # discovery reports /b's publisher, then its messages come
+        rec.clock(_clock(k * MS), {'source_timestamp': 100 * k})
+        for n, t in enumerate(['/a'] + (['/b'] if k >= 3 else [])):
+            rec.message(t, False, _float(), {'source_timestamp': 100 * k + 1 + n,
+                                             'publication_sequence_number': k})
+        rec.advance(1)
+    rec.request_stop(0.1)
+    path, _ = rec.finish_stop()
+    info = yaml.safe_load((path / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    meta = {e['topic_metadata']['name']: (e['topic_metadata']['offered_qos_profiles'],
+                                          e['message_count'])
+            for e in info['topics_with_message_count']}
+    assert set(meta) == {'/a', '/b', '/c'}
+    assert meta['/a'][0][0]['reliability'] == meta['/b'][0][0]['reliability'] == 'reliable'
+    assert meta['/b'][1] == 3 and meta['/c'] == ([], 0)

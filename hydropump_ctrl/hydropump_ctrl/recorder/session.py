@@ -104,6 +104,7 @@ class Session:
         self.events: dict[str, list] = {name: [0, None] for name in rec.event_kinds}
         self.last_src: dict[str, int] = {}      # topic -> its latest source timestamp [ns]
         self.counted: dict[str, int] = {}       # topic -> latest log time counted as lost
+        self._channels = False                  # the first channels registered
 
     @property
     def messages(self) -> int:
@@ -154,12 +155,14 @@ class Session:
         w = self.writer
         sim = self.seq.mode == 'sim'
         events = self.rec.events
-        if records and not w.topics:
+        if records and not self._channels:
             # Channels in the recorded topics' order, not in the order of the first arrivals
-            # (which differ between runs): the same run gives the same bytes.
-            for t in self.rec.topics:
-                if t in self.rec.graph.types:
-                    w.add_topic(t, self.rec.graph.types[t], self.rec.graph.offered_qos(t))
+            # (which differ between runs): the same run gives the same bytes. A topic whose
+            # publishers discovery has not reported yet (a recorder started into a running
+            # graph) waits for its first message, by which its publishers are known: a
+            # channel's QoS cannot change once written.
+            self._channels = True
+            self.register(lambda qos: bool(qos))
         for r in records:
             if self.stop_at is not None and sim and r.log_ns > self.stop_at:
                 continue  # after the stop
@@ -224,6 +227,16 @@ class Session:
         self.early = []
         return n
 
+    def register(self, ready: Callable[[list[dict]], bool]) -> None:
+        """Channels for the recorded topics of known type whose offered QoS ``ready``
+        accepts, in the recorded topics' order."""
+        graph = self.rec.graph
+        for t in self.rec.topics:
+            if t in graph.types and t not in self.writer.topics:
+                qos = graph.offered_qos(t)
+                if ready(qos):
+                    self.writer.add_topic(t, graph.types[t], qos)
+
     # ---- close ---------------------------------------------------------------------------
 
     def close(self, reason: str, drain: str | None = None,
@@ -247,6 +260,8 @@ class Session:
             cd[f'events.{name}'] = str(n)
             if first is not None:
                 cd[f'events.{name}.first'] = f'{first * 1e-9:.6f}'
+        if self._channels:
+            self.register(lambda qos: True)  # the topics that sent nothing: listed too
         return self.writer.close()
 
 

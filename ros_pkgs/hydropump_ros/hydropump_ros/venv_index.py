@@ -92,12 +92,21 @@ def install(root: Path, prefix: Path) -> list[Path]:
                                                       'platbase': str(prefix)})['purelib'])
                 libs = [prefix / 'lib', *sorted(d for d in site.glob('ros_*.libs')
                                                 if d.is_dir())]
-                link.write_text(LAUNCHER.format(
-                    python=prefix / 'bin' / 'python', name=exe, func=NODES[exe],
-                    libs=os.pathsep.join(str(d) for d in libs)))
-                link.chmod(0o755)
-            else:
-                link.symlink_to(os.path.relpath(prefix / 'bin' / exe, lib))
+                text = LAUNCHER.format(python=prefix / 'bin' / 'python', name=exe,
+                                       func=NODES[exe],
+                                       libs=os.pathsep.join(str(d) for d in libs))
+                # The venv's own bin/<node> too, in place of pip's console script: started
+                # from there (.venv/bin/simulator), a Ctrl-C in its first milliseconds was
+                # the same fatal error at site import.
+                (prefix / 'bin').mkdir(exist_ok=True)
+                for path in (link, prefix / 'bin' / exe):
+                    if path.is_symlink():
+                        path.unlink()
+                    path.write_text(text)
+                    path.chmod(0o755)
+                    written.append(path)
+                continue
+            link.symlink_to(os.path.relpath(prefix / 'bin' / exe, lib))
             written.append(link)
     pth = Path(sysconfig.get_paths(vars={'base': str(prefix), 'platbase': str(prefix)})
                ['purelib']) / 'hydropump_ament_prefix.pth'
