@@ -20,7 +20,9 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+import json
 import math
+from pathlib import Path
 import re
 from typing import Any
 
@@ -233,3 +235,87 @@ class RateLimit:
             self._last = t_ns
             return True
         return False
+
+
+# ---- layouts ---------------------------------------------------------------------------------
+
+# The plots a circuit adds to the shipped layout: (panel, title, the kinds of
+# measure.model_topics it plots).
+CIRCUIT_PLOTS = (('Plot!circuit_pressures', 'Circuit pressures [Pa abs]',
+                  ('pressure',)),
+                 ('Plot!circuit_flows', 'Load flows [m^3/s]', ('flow',)),
+                 ('Plot!circuit_positions', 'Load positions [m, rad]', ('position', 'angle')),
+                 ('Plot!circuit_speeds', 'Load speeds [m/s, rad/s]', ('velocity', 'speed')))
+COLOURS = ('#1f77b4', '#d62728', '#2ca02c', '#ff7f0e', '#9467bd', '#8c564b', '#e377c2',
+           '#7f7f7f', '#bcbd22', '#17becf')
+# What marks a layout file as one this suite wrote (hydropump-graph replaces only those).
+WRITTEN_BY = 'hydropump'
+# The shipped layout of a pump in the root namespace.
+BASE_LAYOUT = Path(__file__).resolve().parents[2] / 'config' / 'foxglove' / 'hydropump.json'
+
+
+def layout(base: Mapping[str, Any], namespace: str = '', topics=()) -> dict:
+    """The Foxglove layout ``base`` (``config/foxglove/hydropump.json``) for a graph in
+    ``namespace``: every topic it names moved under the namespace; with a circuit's
+    ``topics`` (:func:`hydropump_sim.measure.model_topics`) a row of plots of what the
+    circuit adds (its load-sensing and load pressures, load flows, load motion).
+    Pressures are FluidPressure (``.fluid_pressure``), the rest Float64 (``.data``)."""
+    import copy
+    ns = '/' + namespace.strip('/') if namespace.strip('/') else ''
+
+    def under(topic: str) -> str:
+        return ns + '/' + topic.lstrip('/')
+    out = copy.deepcopy(dict(base))
+    for panel in out['configById'].values():
+        for path in panel.get('paths', []):
+            path['value'] = under(path['value'])
+        if 'topicToRender' in panel and panel['topicToRender'] != '/diagnostics':
+            panel['topicToRender'] = under(panel['topicToRender'])
+    row = []
+    template = next(p for p in out['configById'].values() if 'paths' in p)
+    for panel_id, title, kinds in CIRCUIT_PLOTS:
+        chosen = [t for t in topics if t.kind in kinds]
+        if not chosen:
+            continue
+        paths = [{'value': under(t.topic) + ('.fluid_pressure' if t.kind == 'pressure'
+                                             else '.data'),
+                  'label': t.topic, 'enabled': True, 'timestampMethod': 'receiveTime',
+                  'color': COLOURS[k % len(COLOURS)]} for k, t in enumerate(chosen)]
+        out['configById'][panel_id] = {**{k: v for k, v in template.items()
+                                          if k not in ('title', 'paths')},
+                                       'title': title, 'paths': paths}
+        row.append(panel_id)
+    if row:
+        tree: Any = row[-1]
+        for panel_id in reversed(row[:-1]):
+            tree = {'direction': 'row', 'first': panel_id, 'second': tree}
+        out['layout'] = {'direction': 'column', 'splitPercentage': 75,
+                         'first': out['layout'], 'second': tree}
+    out['globalVariables'] = {**out.get('globalVariables', {}), 'written_by': WRITTEN_BY,
+                              'namespace': ns or '/'}
+    return out
+
+
+def write_layout(path: Path, namespace: str = '', circuit_file: str | None = None) -> Path:
+    """Write :func:`layout` for a graph in ``namespace`` with the circuit of ``circuit_file``
+    (its structure only: nothing is compiled) to ``path``. A file there that this suite
+    did not write is never replaced: :class:`FileExistsError`."""
+    from hydropump_sim.measure import model_topics
+    topics = []
+    if circuit_file:
+        from hydropump_sim.circuit import load_circuit
+        topics = model_topics(load_circuit(circuit_file, compile=False))[0]
+    if path.exists():
+        try:
+            ours = json.loads(path.read_text())['globalVariables']['written_by'] == WRITTEN_BY
+        except (OSError, ValueError, KeyError, TypeError):
+            ours = False
+        if not ours:
+            raise FileExistsError(f'{path}: exists and is not a layout hydropump wrote; '
+                                  'move it, or run from another folder')
+    text = json.dumps(layout(json.loads(BASE_LAYOUT.read_text()), namespace, topics),
+                      indent=2) + '\n'
+    tmp = path.with_name(path.name + '.tmp')
+    tmp.write_text(text)
+    tmp.replace(path)
+    return path

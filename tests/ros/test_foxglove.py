@@ -142,16 +142,25 @@ def test_line_pressure_reaches_a_foxglove_client_as_dds_carries_it(nodes, test_n
     assert 'Traceback' not in fox.log()
 
 
-def test_a_client_that_offers_only_the_old_subprotocol_name_is_refused(nodes):
-    """The SDK's server knows the protocol as foxglove.sdk.v1 only (docs/ros.md says which
-    clients connect); if this changes, the docs change with it."""
-    from websockets.exceptions import InvalidStatus
+@pytest.mark.parametrize('names', [['foxglove.websocket.v1'], ['foxglove.sdk.v1']],
+                         ids=['old_name', 'new_name'])
+def test_a_client_that_offers_either_subprotocol_name_alone_is_served(nodes, names):
+    """The SDK's server knows the protocol as foxglove.sdk.v1 only; the node's relay serves
+    a client that offers only the older name foxglove.websocket.v1 (Lichtblick, older
+    Foxglove Studio) as well: the handshake names what the client offered, and the protocol
+    runs (the server's info, then a channel and its messages)."""
     port = free_port()
     nodes.start('foxglove', '-p', f'port:={port}', '-p', 'topics:=[clock]')
-    with connect(port):
-        pass  # serving
-    with pytest.raises(InvalidStatus):
-        connect(port, subprotocols=['foxglove.websocket.v1'])
+    nodes.start('simulator')
+    with connect(port, subprotocols=names) as ws:
+        assert ws.subprotocol == names[0]
+        info = json.loads(ws.recv(timeout=30))
+        assert info['op'] == 'serverInfo' and info['name'] == 'hydropump /'
+        ch = advertised(ws, '/clock')
+        ws.send(json.dumps({'op': 'subscribe', 'subscriptions': [{'id': 1,
+                                                                  'channelId': ch['id']}]}))
+        ((sid, _, clock),) = message_frames(ws, 1)
+        assert sid == 1 and clock['clock']['sec'] >= 0
 
 
 @pytest.mark.parametrize('signals', [(signal.SIGINT, signal.SIGINT), (signal.SIGTERM,)],

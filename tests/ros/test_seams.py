@@ -145,6 +145,17 @@ def test_a_plain_graph_gives_one_clock_in_the_bag(tmp_path, ros_domain, test_nod
         # The recorder has seen the simulator's /clock (discovery on a loaded machine can
         # miss the first announcements and take a few seconds more).
         spin_until(test_node, lambda: 'sim' in bases, 30, 'the recorder to take /clock')
+        # `ros2 node info <node>` (the same graph query) lists each node's busy data
+        # subscriptions, served by a loop of its own, and there is no hidden node for them.
+        wanted = {'simulator': '/solenoid_current_cmd', 'controller': '/clock',
+                  'recorder': '/line_flow'}
+
+        def subscribed():
+            return {n: t for n, t in wanted.items() if t in {
+                name for name, _ in test_node.get_subscriber_names_and_types_by_node(n, '/')}}
+        spin_until(test_node, lambda: subscribed() == wanted, 30, "the nodes' subscriptions")
+        assert not [n for n, _ in test_node.get_node_names_and_namespaces()
+                    if n.endswith('_io')]
         time.sleep(2.0)  # two seconds of a paced run
         for p in procs:
             p.proc.send_signal(signal.SIGINT)

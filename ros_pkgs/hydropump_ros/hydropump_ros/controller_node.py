@@ -205,7 +205,7 @@ class ControllerNode(bridge.ExplainedParameters, LifecycleNode):
 
     def _teardown(self) -> None:
         for s in self._io_entities:
-            self._io.node.destroy_subscription(s)
+            self._io.unsubscribe(s)
         for s in self._entities:
             self.destroy_subscription(s)
         for t in getattr(self, '_timers', ()):

@@ -199,47 +199,69 @@ def run(factory: Callable[[], object], *, prog: str, doc: str,
     return getattr(node, 'exit_code', 0)
 
 
-def hidden_node(owner):
-    """A node beside ``owner`` (same context and namespace, hidden name ``_<name>_io``, no
-    parameter services, no command-line remaps: names are resolved by ``owner`` first) for
-    subscriptions that ``owner``'s executor is not to serve."""
-    from rclpy.node import Node
-    return Node(f'_{owner.get_name()}_io', namespace=owner.get_namespace(),
-                context=owner.context, use_global_arguments=False,
-                start_parameter_services=False)
+_UNSERVED = None
+
+
+def unserved_group():
+    """A callback group no executor serves (its ``can_execute`` is always false): the
+    subscriptions in it stay on their node, where ``ros2 node info`` lists them, and a loop
+    of the node's own takes their messages."""
+    global _UNSERVED
+    if _UNSERVED is None:
+        from rclpy.callback_groups import CallbackGroup
+
+        class Unserved(CallbackGroup):
+            def can_execute(self, entity) -> bool:
+                return False
+
+            def beginning_execution(self, entity) -> bool:
+                return False
+
+            def ending_execution(self, entity) -> None:
+                pass
+        _UNSERVED = Unserved
+    return _UNSERVED()
 
 
 class SideExecutor:
-    """A :func:`hidden_node` for a node's busiest subscriptions, served by a loop of its own
-    in a thread of its own: one wait set over those subscriptions alone, and at each wake
-    every message each ready one holds, handed to its callback directly. An rclpy executor
-    rebuilds its wait set over every entity of its nodes and makes a task of each message:
-    for the few topics a lock-step exchange waits on, that machinery was most of a node's
-    CPU (bench/bench_ros.py)."""
+    """A node's busiest subscriptions, served by a loop of their own in a thread of their
+    own: one wait set over those subscriptions alone, and at each wake every message each
+    ready one holds, handed to its callback directly. An rclpy executor rebuilds its wait set
+    over every entity of its nodes and makes a task of each message: for the few topics a
+    lock-step exchange waits on, that machinery was most of a node's CPU
+    (bench/bench_ros.py). The subscriptions belong to the node itself, in a callback group
+    its executor never serves (:func:`unserved_group`)."""
 
     def __init__(self, owner):
         from rclpy.guard_condition import GuardCondition
-        self.node = hidden_node(owner)
         self._owner = owner
+        self.group = unserved_group()
+        self._subs: list = []
         self._closed = False
         self._wake = GuardCondition(None, None, context=owner.context)
         self._thread = threading.Thread(target=self._spin, name='io', daemon=True)
         self._thread.start()
 
-    def subscribe(self, msg_type, topic: str, callback, qos):
-        sub = self.node.create_subscription(msg_type, self._owner.resolve_topic_name(topic),
-                                            callback, qos)
+    def subscribe(self, msg_type, topic: str, callback, qos, raw: bool = False):
+        sub = self._owner.create_subscription(msg_type, topic, callback, qos,
+                                              callback_group=self.group, raw=raw)
+        self._subs.append(sub)
         self._wake.trigger()  # into the wait set now
         return sub
+
+    def unsubscribe(self, sub) -> None:
+        self._subs.remove(sub)
+        self._wake.trigger()
+        self._owner.destroy_subscription(sub)
 
     def _spin(self) -> None:
         from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
         from rclpy.subscription import Subscription
         with_info = Subscription.CallbackType.WithMessageInfo
-        ctx = self.node.context
+        ctx = self._owner.context
         try:
             while not self._closed and ctx.ok():
-                subs = list(self.node.subscriptions)
+                subs = list(self._subs)
                 with contextlib.ExitStack() as held:
                     # Held handles are destroyed only once the wait and the takes are done.
                     for sub in subs:
@@ -275,7 +297,6 @@ class SideExecutor:
         self._wake.trigger()
         self._thread.join(timeout=2.0)
         self._wake.destroy()
-        self.node.destroy_node()
 
 
 def _spin(executor, stop: threading.Event, failure: list) -> None:

@@ -39,7 +39,7 @@ from hydropump_ctrl.foxglove import (
 from hydropump_ctrl.recorder import header_stamp, SUITE_TYPES
 from hydropump_sim.schema import spec_map, specs_of
 
-from . import bridge, entry
+from . import bridge, entry, subprotocols
 
 CLOCK_TYPE = SUITE_TYPES['/clock']
 
@@ -78,9 +78,17 @@ class FoxgloveNode(bridge.ExplainedParameters, Node):
         # A context of our own: channels and server of this node only, not the SDK's global.
         self._ctx = foxglove.Context()
         try:
+            # The SDK's server on a local port of its own, behind the relay that serves the
+            # user's port under both subprotocol names (subprotocols.py).
             self._server = foxglove.start_server(
-                name=f'hydropump {self.get_namespace()}', host=self.cfg.host,
-                port=self.cfg.port, capabilities=[Capability.Time], context=self._ctx)
+                name=f'hydropump {self.get_namespace()}', host='127.0.0.1', port=0,
+                capabilities=[Capability.Time], context=self._ctx)
+            try:
+                self._relay = subprotocols.Relay(self.cfg.host, self.cfg.port,
+                                                 self._server.port)
+            except BaseException:
+                self._server.stop()
+                raise
         except Exception as exc:  # the SDK raises a bare RuntimeError (address in use, ...)
             raise bridge.StartupError([f'port = {self.cfg.port}: cannot serve on '
                                        f'{self.cfg.host}:{self.cfg.port}: '
@@ -111,7 +119,7 @@ class FoxgloveNode(bridge.ExplainedParameters, Node):
         self.create_timer(self.cfg.discovery_period, self._discover,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.get_logger().info(f'ready: serving {len(self._topics)} topics on '
-                               f'ws://{self.cfg.host}:{self._server.port}')
+                               f'ws://{self.cfg.host}:{self._relay.port}')
 
     # ---- the graph -----------------------------------------------------------------------
 
@@ -136,10 +144,9 @@ class FoxgloveNode(bridge.ExplainedParameters, Node):
             self._subscribe(topic, cls)
 
     def _subscribe(self, topic: str, cls) -> None:
-        # On the side loop's node, raw; the loop takes it into its wait set at its next wake.
-        self._io.node.create_subscription(
-            cls, topic, lambda data, topic=topic: self._on_message(topic, data), self._qos,
-            raw=True)
+        # Served by the side loop, raw; the loop takes it into its wait set at its next wake.
+        self._io.subscribe(cls, topic, lambda data, topic=topic: self._on_message(topic, data),
+                           self._qos, raw=True)
 
     def _discover(self) -> None:
         missing = [t for t in self._wanted if t not in self._topics]
@@ -179,6 +186,7 @@ class FoxgloveNode(bridge.ExplainedParameters, Node):
         self._io.close()
         for served in list(self._topics.values()):
             served.channel.close()
+        self._relay.stop()
         self._server.stop()
 
 

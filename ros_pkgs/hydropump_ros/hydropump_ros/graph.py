@@ -123,6 +123,18 @@ def main(argv=None) -> int:
         if value and not Path(value).is_file():
             print(f'error: --{name.replace("_", "-")} {value}: no such file', file=sys.stderr)
             return 2
+    layout = 'config/foxglove/hydropump.json'
+    if args.foxglove and (args.namespace.strip('/') or args.circuit_file):
+        # A layout whose plots name this graph's topics: the namespace's, the circuit's.
+        from hydropump_ctrl.foxglove import write_layout
+        where = Path(args.log_dir) if args.log_dir else Path.cwd()
+        try:
+            where.mkdir(parents=True, exist_ok=True)
+            layout = str(write_layout(where / 'foxglove_layout.json', args.namespace,
+                                      args.circuit_file))
+        except (OSError, ValueError) as exc:
+            print(f'error: {exc}', file=sys.stderr)
+            return 2
     env = dict(os.environ)
     env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     procs, logs = {}, {}
@@ -139,7 +151,7 @@ def main(argv=None) -> int:
         print(f'started {name} (pid {procs[name].pid})', flush=True)
     if 'foxglove' in procs:
         print(f'live view: ws://{FOXGLOVE["host"].default}:{args.foxglove} (Foxglove; layout '
-              'config/foxglove/hydropump.json)', flush=True)
+              f'{layout})', flush=True)
     stopping = []
     signal.signal(signal.SIGINT, lambda *_: stopping.append(True))
     signal.signal(signal.SIGTERM, lambda *_: stopping.append(True))

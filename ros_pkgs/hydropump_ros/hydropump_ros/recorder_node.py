@@ -123,12 +123,11 @@ class RecorderNode(bridge.ExplainedParameters, Node):
             self.get_logger(), lvl, txt), events=self.events, event_kinds=EVENT_KINDS)
         self._qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                                history=HistoryPolicy.KEEP_ALL)
-        # The data subscriptions live on a node that no executor spins: the take loop serves
-        # them, at about four times the rate of rclpy's executor.
-        self._io = entry.hidden_node(self)
+        # The data subscriptions sit in a callback group that no executor serves: the take
+        # loop serves them, at about four times the rate of rclpy's executor.
+        self._unserved = entry.unserved_group()
         self._subs: list = []                        # (subscription, topic, stamped)
-        self._clock_sub = self._io.create_subscription(
-            _msg_class(SUITE_TYPES['/clock']), CLOCK, lambda *_: None, self._qos, raw=True)
+        self._clock_sub = self._raw(_msg_class(SUITE_TYPES['/clock']), CLOCK)
         for name, topic in zip(self.cfg.topics, topics):
             msgtype = SUITE_TYPES.get(name) or SUITE_TYPES.get(topic)
             if msgtype and topic != self.events:
@@ -174,10 +173,14 @@ class RecorderNode(bridge.ExplainedParameters, Node):
         cls = _msg_class(msgtype)
         fields = list(cls.get_fields_and_field_types().items())
         stamped = bool(fields) and fields[0] == ('header', 'std_msgs/Header')
-        sub = self._io.create_subscription(cls, topic, lambda *_: None, self._qos, raw=True)
+        sub = self._raw(cls, topic)
         with self._exclusive():
             self.types[topic] = msgtype
             self._subs.append((sub, topic, stamped))
+
+    def _raw(self, cls, topic: str):
+        return self.create_subscription(cls, topic, lambda *_: None, self._qos, raw=True,
+                                        callback_group=self._unserved)
 
     def _discover(self) -> None:
         missing = [t for t in self.rec.topics if t not in self.types]
@@ -186,7 +189,7 @@ class RecorderNode(bridge.ExplainedParameters, Node):
             for topic in missing:
                 if topic in graph:
                     self._add(topic, graph[topic][0])
-        counts = {topic: self._io.count_publishers(topic) for topic in self.types}
+        counts = {topic: self.count_publishers(topic) for topic in self.types}
         self._writer.refresh()
         with self._exclusive():
             self._pub_counts = counts
@@ -234,7 +237,7 @@ class RecorderNode(bridge.ExplainedParameters, Node):
 
     def offered_qos(self, topic: str) -> list[dict]:
         """The QoS of the topic's publishers, as rosbag2 records them."""
-        return [_qos_dict(i.qos_profile) for i in self._io.get_publishers_info_by_topic(topic)]
+        return [_qos_dict(i.qos_profile) for i in self.get_publishers_info_by_topic(topic)]
 
     # ---- the take loop -------------------------------------------------------------------
 
@@ -284,7 +287,7 @@ class RecorderNode(bridge.ExplainedParameters, Node):
             data, info = taken
             info['writer'] = self._writer.of(info['source_timestamp'])
             rec.clock(data, info)
-        rec.advance(self._io.count_publishers(CLOCK) if rec.session and
+        rec.advance(self.count_publishers(CLOCK) if rec.session and
                     rec.session.seq is None else 1)
         return got
 
@@ -375,7 +378,6 @@ class RecorderNode(bridge.ExplainedParameters, Node):
         self.stop(reason=self._signal[0] if self._signal else 'shutdown')
         self._halt.set()
         self._taker.join(timeout=2.0)
-        self._io.destroy_node()
         if self.rec.failed is not None:
             self.exit_code = EXIT_WRITE_ERROR
             print(f'error: {self.rec.failed}', file=sys.stderr, flush=True)
