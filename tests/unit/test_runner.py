@@ -371,3 +371,32 @@ def test_an_integration_failure_says_why_in_words_on_the_simulation_clock(params
         sim.step()
     assert str(exc.value) == ('integration failed at t = 0.003 s of simulation time: '
                               'non-finite state (a parameter or input far outside its range?)')
+
+
+def test_a_reset_puts_a_cylinder_back_where_the_circuit_file_starts_it():
+    """A cylinder has no rest position (its position integrates its flow): a reset after
+    the boom moved puts it back at the ``x0`` its circuit file gives (read here as plain
+    YAML), with the valve closed again and the boom at rest."""
+    import yaml
+
+    from hydropump_sim.circuit import load_circuit
+
+    from ..conftest import ROOT
+    path = ROOT / 'config' / 'circuits' / 'fig1.yaml'
+    x0 = yaml.safe_load(path.read_text())['components']['boom']['cylinder']['x0']
+    sim = Simulator(load_circuit(str(path)), dt=1e-3)
+    pos = sim.model.states.index('boom.cylinder.position')
+    vel = sim.model.states.index('boom.cylinder.velocity')
+    assert sim.x[pos] == pytest.approx(x0, abs=1e-9)
+    sim.set_input('pump.current', 0.9 * sim.model.input_ranges[0][1])
+    sim.set_input('boom.valve.command', 1.0)
+    peak = 0.0
+    for _ in range(300):
+        sim.step()
+        peak = max(peak, abs(sim.x[vel]))
+    assert abs(sim.x[pos] - x0) > 1e-3  # the boom moved
+    sim.set_input('boom.valve.command', 0.0)
+    sim.reset(keep_time=True)
+    assert sim.x[pos] == pytest.approx(x0, abs=1e-9)
+    # At rest: at most the held boom's drift past its closed valve's leakage.
+    assert abs(sim.x[vel]) < 0.01 * peak
