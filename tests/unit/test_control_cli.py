@@ -187,3 +187,33 @@ def test_design_from_a_flagged_fit_honours_its_flags(tmp_path, capsys):
         if code:
             assert len(err.strip().splitlines()) == 1 and 'looks like' not in err
             assert not out.exists()
+
+
+def test_design_for_a_circuit_judges_its_margin_loop_on_the_line_it_has(capsys):
+    """A load-sensing circuit's compensated sections make the line an integrator: the margin
+    loop is judged on that model (not on the paper's load orifice), on a smaller and a
+    larger line, and on the line the circuit presents with its sections open, which the
+    design tool measures and names when it is far from the modelled one (at rest: the
+    pump's outlet volume over beta, the load chambers behind closed valves left out)."""
+    import re
+
+    import yaml
+    fig1 = ROOT / 'config' / 'circuits' / 'fig1.yaml'
+    assert main(['design', '--params', PUMP, '--circuit', str(fig1), '--dry-run']) == 0
+    out = capsys.readouterr().out
+    assert 'any aperture' not in out
+    rows = re.findall(r'^ +(.*?)\s+GM\s+(\S+) dB\s+PM\s+(\S+) deg', out, re.M)
+    rows = {name.strip(): (float(gm), float(pm)) for name, gm, pm in rows}
+    assert rows['EMC margin loop, compensated loads'][1] > 30.0
+    smaller = next(v for k, v in rows.items() if k.startswith('a smaller line'))
+    assert smaller[0] < rows['EMC margin loop, compensated loads'][0]
+    # The outlet's volume is the plant's line (fig1.yaml: V = plant.line.V_l).
+    assert yaml.safe_load(fig1.read_text())['components']['supply_line']['V'] == \
+        'plant.line.V_l'
+    plant = yaml.safe_load(Path(PUMP).read_text())['/**']['ros__parameters']
+    outlet = plant['line']['V_l'] / plant['fluid']['beta']
+    c_l = float(re.search(r'C_l\s+= (\S+)', out)[1])
+    assert outlet <= c_l <= 1.2 * outlet
+    (note,) = [line for line in out.splitlines() if 'every section open' in line]
+    assert float(re.search(r'(\S+) x the modelled', note)[1]) > 2.0
+    assert any(k.startswith('sections open at') for k in rows)

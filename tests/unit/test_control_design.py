@@ -251,3 +251,57 @@ def test_identified_numbers_replace_the_plant_s_and_say_so(params):
     assert v['tau_down'] == pytest.approx(0.12 * ratio, rel=P_L_REL)
     assert 'fit A' in src['gain'] and src['tau'] == 'fit B' and src['t_d'] == 'fit C'
     assert 'eq. 15 / eq. 14' in src['tau_down']
+
+
+def _compensated_loop(cfg, params, C_true, steps=200):
+    """The EMC object in margin mode against compensated loads, far from every limit, on a
+    discrete plant (eq. 19 without delay into a line of capacitance ``C_true`` feeding loads
+    that step their flow), beside emc_compensated_lti in the same loop: both command series
+    [m^3/s] and the margin of each [Pa] from the set-point."""
+    T = cfg.period
+    a = math.exp(-T / cfg.model.tau)
+    margin, p_u = 20.0e5, 80.0e5
+    q0, w = 0.4 * params.Q_max, 0.002 * params.Q_max
+    ctrl = EMCController(cfg)
+    pump = ctrl._pump
+    ctrl.set_reference(margin, 'margin')
+    meas = {'line_pressure': p_u + margin, 'load_pressure': p_u}
+    ctrl.reset(pump.current(q0), meas)
+    Ct = dz.emc_compensated_lti(cfg)
+    Ac, Bc, Cc, Dc = (np.asarray(M) for M in (Ct.A, Ct.B, Ct.C, Ct.D))
+    xc = np.zeros(Ac.shape[0])
+    Q, dp, Ql, dpl = q0, margin, 0.0, 0.0
+    out = []
+    for k in range(steps):
+        q_load = q0 + (w if k >= 10 else 0.0)
+        u = ctrl.update(k * T, T, {'line_pressure': p_u + dp, 'load_pressure': p_u})
+        v = pump.flow_command(u)
+        vl = float((Cc @ xc)[0] + Dc[0, 0] * dpl)
+        xc = Ac @ xc + Bc[:, 0] * dpl
+        out.append((v - q0, vl, dp - margin, dpl))
+        Q, dp = a * Q + (1 - a) * v, dp + T / C_true * (Q - q_load)
+        Ql, dpl = a * Ql + (1 - a) * vl, dpl + T / C_true * (Ql - (q_load - q0))
+    return np.array(out)
+
+
+def test_the_compensated_margin_analysis_is_the_implementation(params, bench):
+    """Against compensated loads (a load-sensing circuit's sections), the controller object
+    and emc_compensated_lti give the same commands in the same loop, and the margins the
+    design tool prints say what the implementation does: the loop settles on the line it
+    was designed for and rings ever larger on a line five times smaller (the loop a model
+    capacitance too large makes, which the tool must not call healthy)."""
+    from hydropump_ctrl.control.design import design_config
+    C = 3.4e-13
+    cfg = design_config(params, bench, base={
+        'model.tau_z': 0.0, 'limits.rate_limit': 1000.0, 'model.load_law': 'compensated',
+        'model.C_l': C, 'controller.mode': 'margin', 'model.dp_compensator': 5.0e5})
+    cfg = cfg.replace({'model.tau_down': cfg.model.tau})
+    run = _compensated_loop(cfg, params, C)
+    # To the implementation's line step (a bisection to a pascal).
+    assert np.max(np.abs(run[:, 0] - run[:, 1])) < 2e-6 * params.Q_max
+    assert dz.emc_compensated_margins(cfg).stable
+    assert abs(run[-1, 2]) < 0.01 * np.max(np.abs(run[:, 2]))   # settled at the set-point
+    small = dz.emc_compensated_margins(cfg, 0.2 * C)
+    assert not small.stable
+    ring = _compensated_loop(cfg, params, 0.2 * C, steps=120)[:, 2]
+    assert np.max(np.abs(ring[60:])) > 3.0 * np.max(np.abs(ring[:60]))

@@ -62,9 +62,11 @@ def model_lines(cfg, sources: dict) -> list[str]:
     return out
 
 
-def design_report(cfg, params, sources: dict) -> str:
+def design_report(cfg, params, sources: dict, lines_of: dict | None = None) -> str:
     """Gains, eigenvalues and margins of a controller configuration, as text; ``sources``
-    says where each model number came from."""
+    says where each model number came from. Against compensated loads the margin loop is
+    judged on the modelled line and on each line capacitance of ``lines_of`` (label ->
+    m^3/Pa: the circuit's line in other states)."""
     from ..control import design as dz
     T, m, e = cfg.period, cfg.model, cfg.emc
     g = dz.emc_gains(cfg)
@@ -127,13 +129,23 @@ def design_report(cfg, params, sources: dict) -> str:
                                                                                  **kw)))
     lines.append(mrow('PI (SIMC), growing flow', dz.pi_flow_margins(cfg, 'up')))
     lines.append(mrow('PI (SIMC), falling flow', dz.pi_flow_margins(cfg, 'down')))
-    ops = dz.margin_operating_points(params, (0.08, 0.5, 0.96), (2.0e6, 3.0e6))
-    mm = [dz.emc_margin_margins(cfg, math.exp(-T / op[4])) for op in ops]
-    lines.append(mrow('EMC margin loop, any aperture 0.08..0.96', min(
-        mm, key=lambda x: x.phase_margin)))
-    spread = max(x.phase_margin for x in mm) - min(x.phase_margin for x in mm)
-    lines.append(f'  (margin loop: phase margin spread over the apertures {spread:.2g} deg: '
-                 'one tuning)')
+    if m.load_law == 'compensated':
+        # The line an integrator of what the pump gives beyond the loads: its capacitance is
+        # the loop gain, so a line smaller than the model's rings.
+        lines.append(mrow('EMC margin loop, compensated loads', dz.emc_compensated_margins(cfg)))
+        variants = {'a smaller line': 0.5 * m.C_l, 'a larger line': 2.0 * m.C_l,
+                    **(lines_of or {})}
+        for label, C in variants.items():
+            lines.append(mrow(f'  {label}, C_l {C / m.C_l:.2g} x modelled',
+                              dz.emc_compensated_margins(cfg, C)))
+    else:
+        ops = dz.margin_operating_points(params, (0.08, 0.5, 0.96), (2.0e6, 3.0e6))
+        mm = [dz.emc_margin_margins(cfg, math.exp(-T / op[4])) for op in ops]
+        lines.append(mrow('EMC margin loop, any aperture 0.08..0.96', min(
+            mm, key=lambda x: x.phase_margin)))
+        spread = max(x.phase_margin for x in mm) - min(x.phase_margin for x in mm)
+        lines.append(f'  (margin loop: phase margin spread over the apertures {spread:.2g} '
+                     'deg: one tuning)')
     lines.append('')
     lines.append('== PI baseline (control_toolbox names) ==')
     for grp, unit in (('pi.flow', 'A/(m^3/s)'), ('pi.margin', 'A/Pa')):
@@ -142,6 +154,39 @@ def design_report(cfg, params, sources: dict) -> str:
                      f'antiwindup {pg.antiwindup_strategy}, feedforward_gain '
                      f'{pg.feedforward_gain:g}')
     return '\n'.join(lines)
+
+
+# The command every section's valve is opened to when the design tool looks at the line a
+# working circuit presents (a fraction of the spool's stroke).
+OPEN_COMMAND = 0.5
+
+
+def _open_line(circuit, cfg) -> tuple[dict, list[str]]:
+    """The capacitance the pump's outlet sees with every section's valve at
+    :data:`OPEN_COMMAND` (the circuit file's other inputs held), against the modelled one
+    (at rest): a label -> m^3/Pa for the report, and a note when it differs by more than
+    2x. Nothing if that state has no steady state."""
+    from hydropump_sim.errors import HydropumpError
+    from hydropump_sim.reduction import line_capacitance
+    from hydropump_sim.steady import equilibrium
+    u = circuit.u0.copy()
+    valves = [k for k, n in enumerate(circuit.inputs) if n.endswith('valve.command')]
+    if not valves or cfg.model.load_law != 'compensated':
+        return {}, []
+    u[valves] = OPEN_COMMAND
+    try:
+        eq = equilibrium(circuit, u, strict=False)
+        C = line_capacitance(circuit, eq, circuit.role('pump')[0].comp.ports['out'][0])
+    except (HydropumpError, ArithmeticError, np.linalg.LinAlgError):
+        return {}, []
+    label = f'sections open at {OPEN_COMMAND:g}'
+    notes = []
+    ratio = C / cfg.model.C_l
+    if not 0.5 <= ratio <= 2.0:
+        notes.append(f'the line capacitance with every section open at {OPEN_COMMAND:g} is '
+                     f'{C:.3g} m^3/Pa, {ratio:.2g} x the modelled {cfg.model.C_l:.3g} (at '
+                     'rest): the margin loop is judged on both below')
+    return {label: C}, notes
 
 
 # A fit flagged so is no model to design on: its numbers sit on a bound, did not converge or
@@ -260,6 +305,7 @@ def cmd_design(args) -> int:
                      plant_name=plant.name, profile_name=prof_path.name)
     cfg = design_config(params, base=base, model=pm)
     sources = dict(pm.sources)
+    lines_of, line_notes = {}, []
     if args.circuit:
         # The circuit's line: the capacitance the pump's outlet sees, and compensated loads.
         from hydropump_sim.circuit import load_circuit
@@ -270,15 +316,16 @@ def cmd_design(args) -> int:
         sources['C_l'] = (f'{Path(args.circuit).name}: the capacitance at the pump outlet, '
                           'every node weighted by how it follows')
         sources['load_law'] = f'{Path(args.circuit).name}: compensated load sections'
+        lines_of, line_notes = _open_line(circuit, cfg)
     for key in base:
         if key.startswith('model.'):
             sources[key[len('model.'):]] = f'--set {key}'
     print(f'plant: {plant}; sensor profile: {prof_path}'
           + (f'; eq. 19 from {args.from_fit}' if args.from_fit else ''))
-    for note in [*fit_notes, *pm.notes]:
+    for note in [*fit_notes, *pm.notes, *line_notes]:
         print(f'note: {note}')
     print(flush=True)
-    print(design_report(cfg, params, sources))
+    print(design_report(cfg, params, sources, lines_of))
     if args.dry_run:
         print(f'\n(dry run: {out} not written)')
         return 0

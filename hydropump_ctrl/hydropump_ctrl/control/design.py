@@ -366,6 +366,55 @@ def emc_margin_margins(cfg: ControllerConfig, alpha_l: float, **plant) -> Margin
     return loop_margins(-emc_margin_lti(cfg, alpha_l) * margin_plant_lti(cfg, alpha_l, **plant))
 
 
+def emc_compensated_lti(cfg: ControllerConfig) -> control.StateSpace:
+    """The margin-mode EMC against compensated loads (``model.load_law: compensated``),
+    linearised, from the measured margin [Pa] to the flow command ``v`` [m^3/s]: the line
+    an integrator ``C_l d(dp)/dt = Q - q_load`` with the load flow estimated as a random
+    walk, the flow target the estimated load flow plus the capacitance filled toward the
+    margin set-point over ``tau_margin_loop`` (emc.py), the reference generator, feedforward
+    and state feedback as in flow mode (growing branch). Loads fed in full (above the
+    compensators' setting), no relief."""
+    g = emc_gains(cfg)
+    a, T, C = g.up.alpha, g.T, cfg.model.C_l
+    l_p, l_q = compensated_estimator_gains(C, T, g.poles['line_fast'], g.poles['line_slow'])
+    kr, tau_loop = g.k_r_margin, cfg.emc.tau_margin_loop
+
+    def f(x, y):
+        Qh, ph, qh, Qr = x
+        e = y - ph
+        qh2 = qh + l_q * e
+        r = qh2 - C * ph / tau_loop      # the set-point is the origin
+        v_r = Qr + kr * (r - Qr)
+        Qr2 = Qr + (1.0 - a) * (v_r - Qr)
+        v = v_r + g.k_x * (Qr - Qh)
+        ph2 = ph + T / C * (Qh - qh2) + l_p * e
+        Qh2 = a * Qh + (1.0 - a) * v
+        return np.array([Qh2, ph2, qh2, Qr2]), v
+
+    return _probe(f, 4, T)
+
+
+def compensated_plant_lti(cfg: ControllerConfig, C_l: float | None = None, gain: float = 1.0
+                          ) -> control.StateSpace:
+    """Pump (growing flow, eq. 19 without its delay) and a line of capacitance ``C_l``
+    (default the model's) feeding compensated loads, from the command ``v`` [m^3/s] to the
+    margin [Pa], sampled; the margin is measured without delay."""
+    import control  # python-control costs a second to import: analysis only
+    T = cfg.period
+    a = math.exp(-T / cfg.model.tau)
+    C = cfg.model.C_l if C_l is None else C_l
+    A = np.array([[a, 0.0], [T / C, 1.0]])
+    B = np.array([[gain * (1.0 - a)], [0.0]])
+    return control.ss(A, B, np.array([[0.0, 1.0]]), np.zeros((1, 1)), T)
+
+
+def emc_compensated_margins(cfg: ControllerConfig, C_l: float | None = None) -> Margins:
+    """Loop margins of the margin-mode EMC against compensated loads, the line's
+    capacitance ``C_l`` (default the model's: a plant whose line is larger or smaller than
+    the model says)."""
+    return loop_margins(-emc_compensated_lti(cfg) * compensated_plant_lti(cfg, C_l))
+
+
 def closed_loop_eigenvalues(cfg: ControllerConfig, branch: str = 'up') -> np.ndarray:
     """Eigenvalues (z-plane) of the nominal flow loop: EMC on the linear model with delay."""
     import control  # python-control costs a second to import: analysis only
