@@ -57,11 +57,40 @@ def write_text(path: str | Path, text: str, what: str = 'file') -> Path:
     return Path(path)
 
 
+# The PNG text key under which a figure keeps where its axes are (:func:`axes_boxes`).
+AXES_KEY = 'hydropump:axes'
+
+
 def save_figure(fig, path: str | Path, what: str = 'figure', **kwargs) -> Path:
-    """A matplotlib figure into ``path`` (format from its suffix), whole or not at all."""
+    """A matplotlib figure into ``path`` (format from its suffix), whole or not at all. A
+    PNG keeps :func:`axes_boxes` in its text (a reader can check that every axes shows
+    something)."""
+    if Path(path).suffix.lower() == '.png' and 'bbox_inches' not in kwargs:
+        import json
+        kwargs['metadata'] = {**kwargs.get('metadata', {}),
+                              AXES_KEY: json.dumps(axes_boxes(fig))}
     with replacing(path, what) as tmp:
         fig.savefig(tmp, **kwargs)
     return Path(path)
+
+
+def axes_boxes(fig) -> list[dict]:
+    """Where each visible axes of ``fig`` is, as fractions of the image from its top left
+    ``[x0, y0, x1, y1]`` (``box``), with the boxes of its legend and texts (``skip``): what
+    is left of the box is where its data are drawn. Colour bars are left out."""
+    fig.draw_without_rendering()  # the layout and the legends' sizes, no pixels
+    w, h = fig.bbox.width, fig.bbox.height
+
+    def frac(bb):
+        return [round(bb.x0 / w, 4), round(1.0 - bb.y1 / h, 4), round(bb.x1 / w, 4),
+                round(1.0 - bb.y0 / h, 4)]
+    out = []
+    for ax in fig.axes:
+        if not (ax.get_visible() and ax.axison) or ax.get_label() == '<colorbar>':
+            continue
+        extra = [a for a in (ax.get_legend(), *ax.texts) if a is not None and a.get_visible()]
+        out.append({'box': frac(ax.bbox), 'skip': [frac(a.get_window_extent()) for a in extra]})
+    return out
 
 
 def refuse_foreign(path: str | Path, mark: str, what: str) -> None:

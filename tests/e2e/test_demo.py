@@ -110,6 +110,9 @@ def test_fig1_duty_cycle_through_the_nodes(demo):
         # full-open pressure, as the invariants allow (the 20 ms means reached 261.5 bar).
         assert f['p_peak'] <= 2.0 * p.relief.p_full - p.relief.p_crack, (name, f['p_peak'])
         assert f['loss_mean'] > 0.0 and 0.5 < f['efficiency'] < 1.0, (name, f)
+        # Dissipated, never given back: at every instant of the run (energy a section's
+        # volumes store while they charge is not a loss).
+        assert f['loss_min'] >= 0.0, (name, f['loss_min'])
     pre, post = runs['fig1_emc_pre']['delivered'], runs['fig1_emc_post']['delivered']
     assert pre['motor'] >= 0.95 and pre['boom'] <= 0.8, pre
     assert post['boom'] <= 0.9 and abs(post['boom'] - post['motor']) <= 0.05, post
@@ -172,6 +175,7 @@ def test_the_report_in_a_real_browser(demo):
                 'img', 'els => els.map(e => [e.complete, e.naturalWidth, e.naturalHeight])')
             rows = page.eval_on_selector_all('table', 'ts => ts.map(t => t.rows.length)')
             headings = page.eval_on_selector_all('h2', 'hs => hs.map(h => h.textContent)')
+            inked = page.eval_on_selector_all('img[data-axes]', INKED)
         finally:
             browser.close()
     assert not errors, errors
@@ -180,6 +184,38 @@ def test_the_report_in_a_real_browser(demo):
     assert all(ok and w > 300 and h > 200 for ok, w, h in images), images
     assert len(rows) >= 4 and all(n >= 2 for n in rows), rows
     assert any('Fig. 1' in h for h in headings), headings
+    # Every axes of every figure shows data: ink (dark or coloured pixels, not the light
+    # grid) inside its frame, outside its legend and texts.
+    assert len(inked) == len(images), (len(inked), len(images))
+    blank = [(alt, k, n) for alt, counts in inked for k, (n, area) in enumerate(counts)
+             if n < max(30, 1e-3 * area)]
+    assert not blank, blank
+
+
+# For each figure: its name and, per axes (the boxes it keeps in data-axes), the pixels of
+# ink in the frame (3 px in from its edges, its legend and texts left out) and the area.
+INKED = """imgs => imgs.map(img => {
+  const c = document.createElement('canvas');
+  c.width = img.naturalWidth; c.height = img.naturalHeight;
+  const g = c.getContext('2d');
+  g.drawImage(img, 0, 0);
+  const px = g.getImageData(0, 0, c.width, c.height).data;
+  const W = c.width, H = c.height;
+  return [img.alt, JSON.parse(img.dataset.axes).map(a => {
+    const [x0, y0, x1, y1] = [a.box[0] * W + 3, a.box[1] * H + 3, a.box[2] * W - 3,
+                              a.box[3] * H - 3].map(Math.round);
+    const skip = a.skip.map(b => [b[0] * W, b[1] * H, b[2] * W, b[3] * H]);
+    let ink = 0, area = 0;
+    for (let y = y0; y < y1; y++) for (let x = x0; x < x1; x++) {
+      if (skip.some(b => x >= b[0] && x <= b[2] && y >= b[1] && y <= b[3])) continue;
+      area++;
+      const i = 4 * (y * W + x), r = px[i], gr = px[i + 1], b = px[i + 2];
+      const hi = Math.max(r, gr, b), lo = Math.min(r, gr, b);
+      if (lo < 160 || hi - lo > 60) ink++;
+    }
+    return [ink, area];
+  })];
+})"""
 
 
 def test_the_report_says_where_it_came_from(demo):

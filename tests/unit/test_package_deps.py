@@ -22,6 +22,7 @@ THIRD_PARTY = {
     'numpy': ('python3-numpy', 'numpy'), 'scipy': ('python3-scipy', 'scipy'),
     'numba': ('python3-numba', 'numba'), 'yaml': ('python3-yaml', 'PyYAML'),
     'matplotlib': ('python3-matplotlib', 'matplotlib'), 'tqdm': ('python3-tqdm', 'tqdm'),
+    'PIL': ('python3-pil', 'pillow'),
     'control': ('python3-control-pip', 'control'),
     'rosbags': ('python3-rosbags-pip', 'rosbags'),
     'mcap': ('python3-mcap-pip', 'mcap'),

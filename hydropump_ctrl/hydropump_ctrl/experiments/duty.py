@@ -48,3 +48,10 @@ def mean20(t: np.ndarray, x: np.ndarray) -> np.ndarray:
     from hydropump_sim.metrics import moving_average
     k = max(1, int(round(0.02 / float(np.median(np.diff(t))))))
     return moving_average(x, k) if k > 1 else x
+
+
+def filled(t: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """A topic published less often than the grid (the energies: every 10 ms) on every
+    sample, linear between its own (the energies' sum is kept: they share their times)."""
+    ok = np.isfinite(v)
+    return np.interp(t, t[ok], v[ok]) if ok.any() else v

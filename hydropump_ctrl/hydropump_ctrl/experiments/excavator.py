@@ -36,8 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .duty import filled, mean20, schedule
 from .duty import held_inputs as duty_held
-from .duty import mean20, schedule
 from .duty import recorder_topics as duty_recorder_topics
 from .experiment import Experiment
 
@@ -204,7 +204,7 @@ class ExcavatorRun:
                    {n: gauge(f'loads/{n}/pressure') for n in LOADS},
                    {n: gauge(f'loads/{n}/pressure_b') for n in LOADS}, speed,
                    {n: sig[f'loads/{n}/position'] for n in CYLINDERS},
-                   {k: _filled(t, v) for k, v in sig.items() if k.startswith('energy/')})
+                   {k: filled(t, v) for k, v in sig.items() if k.startswith('energy/')})
 
     @classmethod
     def from_loop(cls, run) -> ExcavatorRun:
@@ -217,13 +217,6 @@ class ExcavatorRun:
                    {n: run[f'{n}.speed' if n == 'swing' else f'{n}.velocity'] for n in LOADS},
                    {n: run[f'{n}.position'] for n in CYLINDERS},
                    cumulative(run.model, run.t, run.y))
-
-
-def _filled(t: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """A topic published less often than the grid (the energies: every 10 ms) on every
-    sample, linear between its own (the energies' sum is kept: they share their times)."""
-    ok = np.isfinite(v)
-    return np.interp(t, t[ok], v[ok]) if ok.any() else v
 
 
 def _since_change(t: np.ndarray, names: Sequence[str]) -> np.ndarray:

@@ -17,8 +17,12 @@ commands and the boom's force its ``inputs.<name>`` parameters, set at their ins
   demand is the flow it took, unsaturated, in the 0.5 s before, scaled by its command
   (a compensated section's flow is proportional to its command);
 - the pressure peaks, and the time the relief valve stood open;
-- the throttling power lost, ``P_l Q_p - sum P_i Q_i`` (relief included), and the share of
-  the pump's hydraulic power that reached the loads.
+- the throttling power lost: what the valves dissipate (metering edges, compensators, the
+  relief, the signal line), from the simulator's energy account (``energy/loss`` less the
+  actuators' friction and leakage, :mod:`hydropump_sim.energy`), and the share of the
+  pump's hydraulic power that did not go there. The balance ``P_l Q_p - sum P_i Q_i``
+  would count as lost the energy a section's volumes store while they charge (it dipped
+  to -40 kW as they gave it back).
 
 The flows in a bag come through the bench's flow sensors (``config/bench.yaml``: delayed by
 55 ms); they are moved back by the profile's configured delay to line up with the pressures.
@@ -35,8 +39,8 @@ import numpy as np
 
 from hydropump_sim.sensors import SensorProfile
 
+from .duty import filled, mean20
 from .duty import held_inputs as duty_held
-from .duty import mean20
 from .duty import recorder_topics as duty_recorder_topics
 from .duty import schedule as duty_schedule
 from .experiment import EXCITATION_BASE, Experiment
@@ -130,7 +134,7 @@ def fig1_experiments(circuit, variants: Sequence[tuple[str, str]] = VARIANTS,
 def bag_topics() -> list[str]:
     """The topics :func:`duty_figures` reads besides the current and the pump flow."""
     return ['line_pressure', 'ls_pressure', *(f'loads/{n}/{k}' for n in LOADS
-                                              for k in ('pressure', 'flow'))]
+                                              for k in ('pressure', 'flow')), *THROTTLING]
 
 
 def recorder_topics(topics: Sequence[str]) -> list[str]:
@@ -140,6 +144,11 @@ def recorder_topics(topics: Sequence[str]) -> list[str]:
 
 
 # ---- judging a run -------------------------------------------------------------------------
+
+# The energy account's topics [J, cumulative] whose difference is the throttling loss.
+THROTTLING = ('energy/loss', 'energy/loss/actuators')
+# s: the window over which the throttling power is the slope of its energy.
+LOSS_WINDOW = 0.02
 
 @dataclass
 class DutyRun:
@@ -151,6 +160,7 @@ class DutyRun:
     q_p: np.ndarray
     p: dict
     q: dict
+    e_loss: np.ndarray   # throttling energy dissipated since the bag's start [J]
 
     @classmethod
     def from_recording(cls, rec, t0: float, p_atm: float, flow_delay: float) -> DutyRun:
@@ -162,10 +172,11 @@ class DutyRun:
 
         def early(x):
             return np.interp(t + flow_delay, t, x, right=np.nan)
+        total, actuators = (filled(t, sig[k]) for k in THROTTLING)
         return cls(t, sig['line_pressure'] - p_atm, sig['ls_pressure'] - p_atm,
                    early(sig['pump_flow']),
                    {n: sig[f'loads/{n}/pressure'] - p_atm for n in LOADS},
-                   {n: early(sig[f'loads/{n}/flow']) for n in LOADS})
+                   {n: early(sig[f'loads/{n}/flow']) for n in LOADS}, total - actuators)
 
     def window(self, a: float, b: float) -> np.ndarray:
         return (self.t >= a) & (self.t < b) & np.isfinite(self.q_p)
@@ -176,8 +187,11 @@ class DutyRun:
 
     @property
     def loss(self) -> np.ndarray:
-        """Throttling power lost [W]: the pump's hydraulic power less the loads'."""
-        return self.p_l * self.q_p - sum(self.p[n] * self.q[n] for n in LOADS)
+        """Throttling power lost [W]: the slope of its energy over :data:`LOSS_WINDOW`
+        (never negative: the energy only grows)."""
+        t, h = self.t, 0.5 * LOSS_WINDOW
+        a, b = np.maximum(t - h, t[0]), np.minimum(t + h, t[-1])
+        return (np.interp(b, t, self.e_loss) - np.interp(a, t, self.e_loss)) / (b - a)
 
 
 def overlaps(circuit) -> dict[str, float]:
@@ -207,8 +221,9 @@ def duty_figures(run: DutyRun, p_crack: float, overlap: Mapping[str, float],
         (the largest 20 ms-mean error outside the saturated phase), ``delivered``
         (per load, flow over demand in :data:`SATURATED`), ``demand``, ``flow`` (per load
         in the saturated window), ``pump_flow_saturated``, ``p_peak`` (largest 20 ms-mean
-        P_l), ``relief_s`` (time P_l stood above ``p_crack``), ``loss_mean`` [W],
-        ``efficiency`` (loads' energy over the pump's).
+        P_l), ``relief_s`` (time P_l stood above ``p_crack``), ``loss_mean`` and
+        ``loss_min`` [W] (the throttling power), ``efficiency`` (the share of the pump's
+        energy not throttled).
     """
     t = run.t
     ok = np.isfinite(run.q_p)
@@ -233,7 +248,7 @@ def duty_figures(run: DutyRun, p_crack: float, overlap: Mapping[str, float],
     out.update(demand=demand, flow=flow, delivered=delivered,
                pump_flow_saturated=float(run.q_p[sat].mean()),
                p_peak=float(np.max(p_l)), relief_s=float(np.sum(p_l > p_crack) * dt),
-               loss_mean=float(np.mean(run.loss[ok])),
+               loss_mean=float(np.mean(run.loss[ok])), loss_min=float(np.min(run.loss)),
                efficiency=float(1.0 - np.sum(run.loss[ok]) * dt / pump_energy))
     return out
 

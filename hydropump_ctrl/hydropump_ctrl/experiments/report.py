@@ -277,9 +277,15 @@ def caption(path: Path) -> str:
 def _img(path: Path) -> str:
     """A PNG file inlined as a figure (the page stands on its own), captioned with what it
     shows."""
+    from PIL import Image
+
+    from hydropump_sim.files import AXES_KEY
     data = base64.b64encode(path.read_bytes()).decode()
-    return (f'<figure><img src="data:image/png;base64,{data}" alt="{html.escape(path.name)}">'
-            f'<figcaption>{html.escape(caption(path))}</figcaption></figure>')
+    with Image.open(path) as im:
+        axes = getattr(im, 'text', {}).get(AXES_KEY)
+    where = f' data-axes="{html.escape(axes)}"' if axes else ''
+    return (f'<figure><img src="data:image/png;base64,{data}" alt="{html.escape(path.name)}"'
+            f'{where}><figcaption>{html.escape(caption(path))}</figcaption></figure>')
 
 
 def _table(head, rows) -> str:
