@@ -287,12 +287,13 @@ def test_a_second_simulator_in_the_namespace_refuses_having_published_nothing(
     proc = subprocess.Popen([executable('simulator'), '--ros-args', '-r', '__ns:=/'],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        # Its writers come only once it thinks itself alone; a discovery announcement missed
-        # in its first look (Fast DDS repeats them every 3 s) can still show them for its
-        # second look, so their count is not judged here.
+        # Its writers come only once it thinks itself alone, after a look longer than one
+        # of Fast DDS's 3 s announcement periods: the graph never shows a second writer.
         deadline = time.monotonic() + 60
+        writers = 0
         while proc.poll() is None and time.monotonic() < deadline:
             rclpy.spin_once(test_node, timeout_sec=0.05)
+            writers = max(writers, test_node.count_publishers('/clock'))
         out, err = proc.communicate(timeout=30)
     finally:
         if proc.poll() is None:
@@ -300,6 +301,7 @@ def test_a_second_simulator_in_the_namespace_refuses_having_published_nothing(
             proc.wait()
     assert proc.returncode == 2
     assert 'another node publishes /clock in this ROS domain (/simulator)' in out + err
+    assert writers == 1, f'the refused simulator showed a /clock writer\n{out}{err}'
     spin_until(test_node, lambda: clocks[-1].clock.sec > DISCOVERY_WINDOW + 1.5, 30,
                'more of the first clock')
     t = [c.clock.sec * 10**9 + c.clock.nanosec for c in clocks]

@@ -150,3 +150,21 @@ def test_the_shipped_scenario_runs_as_its_comments_say(tmp_path):
     assert drop[1] / drop[0] == pytest.approx((0.5 / 0.6) ** 2, rel=1e-3)
     assert drop[2] == pytest.approx(drop[1], rel=1e-3)
     assert (tmp_path / 'load_change.png').stat().st_size > 10_000
+
+
+def test_the_shipped_circuit_scenario_is_what_its_comments_say():
+    """config/scenarios/fig1_boom.yaml takes Fig. 1's inputs by name, as the simulator node
+    reads it with that circuit: the boom's valve open only from 1 s to 3 s, its force
+    stepping at 2 s, the motor's valve ramping linearly over 1.5..2.5 s, the steering held."""
+    from hydropump_sim.circuit import load_circuit
+    circuit = load_circuit(str(ROOT / 'config' / 'circuits' / 'fig1.yaml'), compile=False)
+    sc = load_scenario(ROOT / 'config' / 'scenarios' / 'fig1_boom.yaml',
+                       ['current', 'aperture', 'load_pressure', 'shaft_speed',
+                        *circuit.all_inputs()])
+    u = sc.inputs
+    assert sc.duration == 4.0
+    assert [u['boom.command'](t) for t in (0.5, 1.5, 2.9, 3.5)] == [0.0, 0.8, 0.8, 0.0]
+    assert [u['boom.force'](t) for t in (1.9, 2.1)] == [4.0e4, 6.0e4]
+    assert u['motor.command'](2.0) == pytest.approx(0.3)
+    assert u['motor.command'](1.0) == 0.0 and u['motor.command'](3.0) == pytest.approx(0.6)
+    assert u['steering.command'](3.7) == 0.3

@@ -54,9 +54,10 @@ from .conversions import event as event_message
 # How long a new simulator looks for another publisher of its clock topic before its first
 # step [s]: a simulator that refuses has published nothing. Discovery usually takes tenths of
 # a second, but a lost announcement is repeated only with Fast DDS's 3 s lease announcement
-# (seen on a loaded machine: 2.9 s), so the look lasts that long. Two simulators started
-# within it of each other both refuse; a later one refuses alone.
-DISCOVERY_WINDOW = 3.0
+# (seen on a loaded machine: 2.9 s; a look of exactly 3 s once missed it, and the refused
+# simulator's writers then showed), so the look lasts longer than one such period. Two
+# simulators started within it of each other both refuse; a later one refuses alone.
+DISCOVERY_WINDOW = 3.5
 # s it looks on once its own publishers exist (two simulators started together).
 CONFIRM_WINDOW = 0.5
 # The prefix of the circuit's operator inputs as live parameters (inputs.boom.command).
