@@ -15,7 +15,7 @@ A commanded current is logged as held from its sample; a measured signal is samp
 input change at ``t_k`` shows in it from the sample after (the inputs just before ``t_k``).
 
 The inputs are held from sample instants (a digital driver's commands, steps on the grid), and
-the bags are written as the recorder writes them (``hydropump_ctrl.recorder.bag``), pressures
+the bags are written as the recorder writes them (``hydropump_ctrl.bag``), pressures
 absolute. Test data only.
 """
 
@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from hydropump_ctrl.recorder.bag import write_bag
+from hydropump_ctrl.bag import write_bag
 from hydropump_sim.model import outputs, pack, rhs
 from hydropump_sim.trim import equilibrium
 

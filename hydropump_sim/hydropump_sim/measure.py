@@ -34,7 +34,8 @@ class SignalInfo:
     spool and plate positions are the simulator's exact states, which no bench has).
     ``display`` is how reports show it (scale from SI, unit); ``plausible`` the range a
     controller takes a sample from (SI, pressures absolute, as the topics carry them),
-    ``None`` where it takes none."""
+    ``None`` where it takes none; ``feedback`` whether a flow controller can close its loop
+    on it (the pump's own flow, eq. 14, or the line's, eq. 15: not the load's)."""
 
     output: str | None       # None: the input P_u
     unit: str
@@ -47,6 +48,7 @@ class SignalInfo:
     bench: bool = True
     display: tuple[float, str] = (1.0, '')
     plausible: tuple[float, float] | None = None
+    feedback: bool = False
 
 
 # Display units and plausible ranges by kind (a flow in L/min, within 100 L/s either way; a
@@ -61,8 +63,10 @@ SIGNALS = {
     'solenoid_current': SignalInfo('I_s', 'A', 'solenoid current I_s', 'current',
                                    'solenoid_current', held=True, display=(1.0, 'A'),
                                    plausible=(0.0, 10.0)),
-    'pump_flow': SignalInfo('Q_p', 'm^3/s', 'pump flow Q_p', 'flow', 'pump_flow', **_FLOW),
-    'line_flow': SignalInfo('q_l', 'm^3/s', 'line flow q_l', 'flow', 'line_flow', **_FLOW),
+    'pump_flow': SignalInfo('Q_p', 'm^3/s', 'pump flow Q_p', 'flow', 'pump_flow',
+                            feedback=True, **_FLOW),
+    'line_flow': SignalInfo('q_l', 'm^3/s', 'line flow q_l', 'flow', 'line_flow',
+                            feedback=True, **_FLOW),
     'load_flow': SignalInfo('Q_load', 'm^3/s', 'load flow Q_load', 'flow', 'load_flow',
                             **_FLOW),
     'actuator_pressure': SignalInfo('P_a', 'Pa', 'actuator pressure P_a', 'pressure',
@@ -84,6 +88,13 @@ LS_PRESSURE_SIGNAL = 'ls_pressure'
 SIGNAL_OUTPUTS = {name: info.output for name, info in SIGNALS.items()}
 PRESSURE_SIGNALS = tuple(n for n, i in SIGNALS.items() if i.kind == 'pressure')
 FLOW_SIGNALS = tuple(n for n, i in SIGNALS.items() if i.kind == 'flow')
+# The flows a flow controller can take as its feedback (controller.flow_signal).
+FEEDBACK_FLOW_SIGNALS = tuple(n for n, i in SIGNALS.items() if i.feedback)
+# The load orifice's own flow (eq. 9): at rest every flow equals it, and it is the one that
+# leaves the pump's leakages and the line's compression out.
+LOAD_FLOW_SIGNAL = 'load_flow'
+# The line's flow q_l, eqs. 14-16's output and the controller's default feedback.
+LINE_FLOW_SIGNAL = 'line_flow'
 # The inputs a recording gives a model of the pump, and the outputs it is compared on.
 CURRENT_SIGNAL = 'solenoid_current'
 LOAD_PRESSURE_SIGNAL = 'load_pressure'

@@ -21,6 +21,9 @@ import numpy as np
 from scipy import optimize
 
 from . import _core as c
+from .components.orifice_load import OrificeLoad
+from .components.pump import Pump
+from .measure import SIGNALS
 from .model import OUTPUTS, pack, state_names
 from .params import input_spec, Params
 from .steady import TrimError
@@ -42,12 +45,11 @@ _STATE_UNITS = {'x_c': 'm', 'v_c': 'm/s', 'x_a': 'm', 'v_a': 'm/s', 'P_a': 'Pa',
                 'i': 'A'}
 _OUTPUT_UNITS = ('A', 'm', 'm/s', 'm', 'm/s', 'Pa', 'Pa', 'm^3/s', 'm^3/s', 'm^3/s', 'm^3/s',
                  'm^3/s', 'Pa')
-#: The suite's measured signals it gives.
-MEASURED = {'solenoid_current': 'pump.current', 'pump_flow': 'pump.Q_p',
-            'line_flow': 'pump.q_l', 'load_flow': 'load.flow',
-            'actuator_pressure': 'pump.P_a', 'line_pressure': 'pump.P_l',
-            'load_pressure': 'load.load_pressure', 'spool_position': 'pump.x_c',
-            'actuator_position': 'pump.x_a'}
+#: The suite's measured signals it gives: what its two components, named ``pump`` and
+#: ``load`` as in config/circuits/paper.yaml, declare they measure.
+_DECLARED = {**{s: f'pump.{v}' for s, v in Pump.MEASURES.items()},
+             **{s: f'load.{v}' for s, v in OrificeLoad.MEASURES.items()}}
+MEASURED = {s: _DECLARED[s] for s in SIGNALS if s in _DECLARED}
 
 
 def operating_inputs(params: Params, current: float | None = None, *, load_pressure=None,

@@ -8,9 +8,9 @@ import sys
 import numpy as np
 import pytest
 
+from hydropump_ctrl.bag import write_bag
 from hydropump_ctrl.batch import cores
 from hydropump_ctrl.cli import main
-from hydropump_ctrl.recorder.bag import write_bag
 
 from ..conftest import ROOT
 

@@ -4,7 +4,7 @@ and any other exception as the bug it is, with its traceback."""
 import pytest
 
 from hydropump_ctrl import cli
-from hydropump_ctrl.cli._common import UsageError
+from hydropump_ctrl.cli.options import UsageError
 from hydropump_ctrl.ident import BagError
 from hydropump_sim.errors import HydropumpError, InputError
 from hydropump_sim.params import ParamError

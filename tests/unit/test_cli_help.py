@@ -14,7 +14,7 @@ import sys
 import pytest
 
 from hydropump_ctrl import cli
-from hydropump_ctrl.cli._common import Number, number_check, Numbers
+from hydropump_ctrl.cli.options import Number, number_check, Numbers
 from hydropump_ros import campaign, graph
 
 BIN = Path(sys.executable).parent

@@ -198,16 +198,38 @@ def test_the_identification_package_takes_nothing_private_and_has_no_cycle():
     assert not cycles(ident)
 
 
+def test_bags_have_one_home_that_the_recorder_and_identification_share():
+    """hydropump_ctrl.bag reads, writes and names the errors of bags; the recorder and
+    identification take their bags from it and neither imports the other; the bag package
+    takes nothing of either."""
+    graph = import_graph(module_files(PACKAGES['hydropump_ctrl'], 'hydropump_ctrl'))
+
+    def takes(prefix, other):
+        return {(m, t) for m, e in graph.items() if m.startswith(prefix)
+                for t in e if t.startswith(other)}
+    for a, b in (('hydropump_ctrl.ident', 'hydropump_ctrl.recorder'),
+                 ('hydropump_ctrl.recorder', 'hydropump_ctrl.ident'),
+                 ('hydropump_ctrl.bag', 'hydropump_ctrl.ident'),
+                 ('hydropump_ctrl.bag', 'hydropump_ctrl.recorder')):
+        assert not takes(a, b), takes(a, b)
+    assert takes('hydropump_ctrl.ident', 'hydropump_ctrl.bag')
+    assert takes('hydropump_ctrl.recorder', 'hydropump_ctrl.bag')
+    from hydropump_ctrl import bag, ident, recorder
+    assert ident.BagError is recorder.BagError is bag.BagError
+    assert issubclass(bag.BagReadError, ValueError) and issubclass(bag.BagWriteError, OSError)
+    assert issubclass(ident.PlausibilityError, bag.BagReadError)
+
+
 def test_each_command_module_takes_only_the_shared_helpers_from_the_cli():
     graph = import_graph(module_files(PACKAGES['hydropump_ctrl'], 'hydropump_ctrl'))
     cli = 'hydropump_ctrl.cli'
     groups = ('plant', 'circuit', 'fit', 'calibrate', 'control', 'record', 'sweep')
     for group in groups:
-        assert {t for t in graph[f'{cli}.{group}'] if t.startswith(cli)} == {f'{cli}._common'}
+        assert {t for t in graph[f'{cli}.{group}'] if t.startswith(cli)} == {f'{cli}.options'}
     # The package itself: each command module, and the shared parser.
     assert {t for t in graph[cli] if t.startswith(cli)} == {f'{cli}.{g}' for g in groups} | {
-        f'{cli}._common'}
-    assert not {t for t in graph[f'{cli}._common'] if t.startswith('hydropump_ctrl')}
+        f'{cli}.options'}
+    assert not {t for t in graph[f'{cli}.options'] if t.startswith('hydropump_ctrl')}
 
 
 # ---- the scan itself --------------------------------------------------------------------------
@@ -248,3 +270,40 @@ def test_relative_imports_resolve_from_modules_and_packages():
     assert _resolve('b', 1, 'p.q', True) == 'p.q.b'
     assert _resolve(None, 2, 'p.q.a', False) == 'p'
     assert _resolve('x.y', 0, 'p.a', False) == 'x.y'
+
+
+def _signal_lists(path: Path, names: set[str]) -> list[str]:
+    """Literal lists of three or more measured signals in ``path`` (a tuple, list, set or
+    dict's keys), components' ``MEASURES`` declarations left out."""
+    tree = ast.parse(path.read_text())
+    declared = {id(n.value) for n in ast.walk(tree) if isinstance(n, ast.Assign)
+                and any(isinstance(t, ast.Name) and t.id == 'MEASURES' for t in n.targets)}
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Tuple, ast.List, ast.Set)):
+            elts = node.elts
+        elif isinstance(node, ast.Dict) and id(node) not in declared:
+            elts = [k for k in node.keys if k is not None]
+        else:
+            continue
+        hit = [e.value for e in elts if isinstance(e, ast.Constant) and e.value in names]
+        if len(hit) >= 3:
+            out.append(f'{path}:{node.lineno}: {hit}')
+    return out
+
+
+def test_the_measured_signals_are_listed_in_one_place(tmp_path):
+    """measure.SIGNALS is the one table of the measured signals: every other list of them
+    (flows, pressures, a recorder's topics) is derived from it, not written again, so that
+    a signal added there reaches every reader. A component says which of its own signals
+    are which measured signal (``MEASURES``); that declaration is its own."""
+    from hydropump_sim.measure import SIGNALS
+    names = set(SIGNALS)
+    home = ROOT / 'hydropump_sim' / 'hydropump_sim' / 'measure.py'
+    found = [hit for folder in PACKAGES.values() for path in sorted(folder.rglob('*.py'))
+             if path != home for hit in _signal_lists(path, names)]
+    assert not found, 'a second list of measured signals:\n' + '\n'.join(found)
+    # The check finds one (a tuple of three, written by hand).
+    probe = tmp_path / 'probe.py'
+    probe.write_text("X = ('line_flow', 'pump_flow', 'load_flow')\n")
+    assert _signal_lists(probe, names)

@@ -9,10 +9,10 @@ import json
 import numpy as np
 import pytest
 
+from hydropump_ctrl.bag import BagWriter, qos_profile, typestore, write_bag
 from hydropump_ctrl.cli import main
 from hydropump_ctrl.ident import recording_to_bag
 from hydropump_ctrl.ident import synthetic as syn
-from hydropump_ctrl.recorder.bag import BagWriter, qos_profile, typestore, write_bag
 
 F64, PRESSURE = 'std_msgs/msg/Float64', 'sensor_msgs/msg/FluidPressure'
 P_ATM = 101325.0              # config/pump.yaml

@@ -371,7 +371,7 @@ def test_an_unpublished_topic_is_named_with_the_nearest_known_one():
 def test_a_bag_name_too_long_is_one_line_not_a_traceback(tmp_path):
     """A 300-character output name: the file system refuses it, and the recorder says so
     (a BagError, which the node turns into its one start-up error line)."""
-    from hydropump_ctrl.recorder.bag import BagError, open_unique
+    from hydropump_ctrl.bag import BagError, open_unique
     with pytest.raises(BagError, match='cannot create the bag: File name too long'):
         open_unique(tmp_path / ('a' * 300))
     assert list(tmp_path.iterdir()) == []

@@ -16,6 +16,7 @@ import textwrap
 import numpy as np
 import pytest
 
+from hydropump_ctrl.bag import typestore
 from hydropump_ctrl.ident import (
     BagError,
     list_topics,
@@ -27,7 +28,6 @@ from hydropump_ctrl.ident import (
     SIGNALS,
     write_bag,
 )
-from hydropump_ctrl.ident.bags import typestore
 from hydropump_sim.errors import HydropumpError
 
 F64 = 'std_msgs/msg/Float64'
@@ -319,7 +319,7 @@ def test_mcap_cut_short_is_read_up_to_its_last_whole_chunk(tmp_path):
 RECORDER = """
 import sys, time
 import numpy as np
-from hydropump_ctrl.ident.bags import typestore
+from hydropump_ctrl.bag import typestore
 from hydropump_sim.errors import HydropumpError
 from rosbags.rosbag2 import StoragePlugin, Writer
 ts = typestore()
@@ -505,7 +505,7 @@ def test_signals_can_be_chosen_and_a_chosen_one_must_be_there(tmp_path):
 
 
 def test_an_undecodable_signal_is_left_out_with_a_note(tmp_path):
-    from hydropump_ctrl.recorder.bag import BagWriter, qos_profile
+    from hydropump_ctrl.bag import BagWriter, qos_profile
     t, cur, flow = _signals(1000)
     ts = typestore()
     F = ts.types[F64]

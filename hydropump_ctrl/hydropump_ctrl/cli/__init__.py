@@ -10,10 +10,10 @@ One module per group of sub-commands:
 - :mod:`.sweep` - ``sweep`` (parameter sweeps and tolerance studies on Dask);
 - :mod:`.record` - ``record`` (a recording plan through the ROS nodes, found through an
   entry point: nothing here imports ROS);
-- :mod:`._common` - what they share: :class:`~._common.UsageError`, the output folder,
+- :mod:`.options` - what they share: :class:`~.options.UsageError`, the output folder,
   checks of option values.
 
-Every number an option takes is checked as the arguments are parsed (:class:`._common.Number`),
+Every number an option takes is checked as the arguments are parsed (:class:`.options.Number`),
 before any work. Every user mistake (bad parameters, scenario, bag, option value, a missing
 file) is a :class:`hydropump_sim.errors.HydropumpError`: :func:`main` prints one ``error:`` line
 per problem and exits with code 2. Ctrl-C exits with 130, a closed pipe (``| head``) with 141.
@@ -29,7 +29,7 @@ import sys
 from hydropump_sim.errors import HydropumpError
 
 from . import calibrate, circuit, control, fit, plant, record, sweep
-from ._common import Parser
+from .options import Parser
 
 # Each adds its sub-commands; a command's ``func(args)`` returns the exit code.
 COMMANDS = (plant.register, circuit.register, fit.register, calibrate.register,

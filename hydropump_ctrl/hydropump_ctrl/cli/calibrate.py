@@ -41,7 +41,7 @@ import sys
 import time
 
 from ..provenance import collect
-from ._common import (
+from .options import (
     add_params_option,
     add_progress_option,
     add_where_options,

@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-from ._common import float_in, output_file, overrides, positive_float, UsageError
+from .options import float_in, output_file, overrides, positive_float, UsageError
 
 UNITS = {'Pa': (1e-5, 'bar'), 'm^3/s': (60000.0, 'L/min')}
 

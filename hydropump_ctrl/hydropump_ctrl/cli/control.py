@@ -20,7 +20,7 @@ import numpy as np
 from hydropump_sim.files import save_figure, write_text
 from hydropump_sim.params import load_params
 
-from ._common import (
+from .options import (
     add_params_option,
     float_in,
     output_file,

@@ -21,7 +21,7 @@ import time
 from hydropump_sim.files import write_text
 
 from ..provenance import collect
-from ._common import add_params_option, add_progress_option, plant_file, positive, run_dir
+from .options import add_params_option, add_progress_option, plant_file, positive, run_dir
 
 
 def register(subparsers) -> None:

@@ -12,7 +12,7 @@ import time
 
 from hydropump_sim.files import save_figure, write_text
 
-from ._common import add_params_option, float_in, output_file, plant_file, run_dir
+from .options import add_params_option, float_in, output_file, plant_file, run_dir
 
 RESULT_SUFFIXES = ('.csv', '.npz')
 RESULT_KINDS = {'.csv': 'results CSV'}

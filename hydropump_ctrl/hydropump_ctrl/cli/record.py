@@ -20,7 +20,7 @@ import yaml
 
 from hydropump_sim.files import write_text
 
-from ._common import add_params_option, float_in, plant_file, positive_float, UsageError
+from .options import add_params_option, float_in, plant_file, positive_float, UsageError
 
 #: Where ROS packages register what ``hydropump`` runs through the node graph.
 RUNNERS = 'hydropump.runners'

@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ._common import add_progress_option, add_where_options, int_in, run_dir, UsageError
+from .options import add_progress_option, add_where_options, int_in, run_dir, UsageError
 
 
 def register(subparsers) -> None:

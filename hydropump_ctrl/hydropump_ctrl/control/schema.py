@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from hydropump_sim.measure import FEEDBACK_FLOW_SIGNALS, LINE_FLOW_SIGNAL
 from hydropump_sim.schema import (
     build,
     group,
@@ -42,8 +43,7 @@ from hydropump_sim.schema import (
 MODES = ('flow', 'margin', 'open_loop')
 ALGORITHMS = ('emc', 'pi')
 ANTIWINDUP = ('none', 'back_calculation', 'conditional_integration')
-SIGNALS = ('staircase', 'prbs', 'chirp', 'sine')
-FLOW_SIGNALS = ('line_flow', 'pump_flow')
+EXCITATIONS = ('staircase', 'prbs', 'chirp', 'sine')
 
 
 @dataclass(frozen=True)
@@ -59,8 +59,8 @@ class General:
     update_rate: float = spec('Hz', 'nominal update rate; the embedded model is discretised '
                               'at its period', 10.0, 2000.0, default=200.0)
     flow_signal: str = spec('-', 'flow measurement used for feedback: line_flow (q_l, the '
-                            'output of eqs. 14-16) or pump_flow (Q_p)', choices=FLOW_SIGNALS,
-                            default='line_flow')
+                            'output of eqs. 14-16) or pump_flow (Q_p)',
+                            choices=FEEDBACK_FLOW_SIGNALS, default=LINE_FLOW_SIGNAL)
 
 
 @dataclass(frozen=True)
@@ -235,7 +235,7 @@ class Excitation:
     offsets, current change for amplitudes).
     """
 
-    signal: str = spec('-', 'staircase, prbs, chirp or sine', choices=SIGNALS,
+    signal: str = spec('-', 'staircase, prbs, chirp or sine', choices=EXCITATIONS,
                        default='staircase', live=True)
     unit: str = spec('-', 'unit of levels, offset and amplitude: percent (of displacement) '
                      'or A', choices=('percent', 'A'), default='percent', live=True)

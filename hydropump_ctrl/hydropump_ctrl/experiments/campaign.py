@@ -29,6 +29,7 @@ import numpy as np
 
 from hydropump_sim.errors import HydropumpError
 from hydropump_sim.files import write_text
+from hydropump_sim.measure import LOAD_FLOW_SIGNAL, suite_topics
 from hydropump_sim.metrics import moving_average, step_figures
 from hydropump_sim.model import pump_flow
 from hydropump_sim.params import Params
@@ -40,9 +41,11 @@ from ..ident import Recording
 from .closed_loop import disturbance_figures, trim_current
 from .experiment import EXCITATION_BASE, Experiment  # noqa: F401 (users import them here)
 
-IDENT_TOPICS = ['solenoid_current', 'solenoid_current_cmd', 'line_flow', 'pump_flow',
-                'joint_states', 'line_pressure', 'load_pressure', 'actuator_pressure']
-LOOP_TOPICS = IDENT_TOPICS + ['load_flow', 'controller/state']
+# What the closed-loop experiments record: every topic of the suite (measure.suite_topics);
+# the identification leaves out the load's flow and the controller's state, which no fit of
+# eq. 19 reads.
+LOOP_TOPICS = suite_topics()
+IDENT_TOPICS = [t for t in LOOP_TOPICS if t not in (LOAD_FLOW_SIGNAL, 'controller/state')]
 STAGES = ('identification', 'fitting', 'closed loop', 'model analysis', 'report')
 #: The stage names of a graph that ran beside the campaign's (the Fig. 1 duty cycle).
 BESIDE = 'Fig. 1 (beside): '

@@ -7,7 +7,8 @@ are pooled as the paper does and fitted jointly. Details and the JSON schema:
 
 Modules, each building only on those above it:
 
-- :mod:`.errors` - :class:`BagError`, :class:`FitError`, :class:`PlausibilityError`;
+- :mod:`.errors` - :class:`FitError`, :class:`PlausibilityError` (bags' own errors are
+  :mod:`hydropump_ctrl.bag`'s: :class:`BagError`, :class:`BagReadError`);
 - :mod:`.plausibility` - a recording checked against the pump before any fit (units,
   message types, two runs in one bag, length);
 - :mod:`.model` - eq. 19 and its exact sampled form;
@@ -15,8 +16,7 @@ Modules, each building only on those above it:
 - :mod:`.diagnostics` - residual tests, covariance, flags, :class:`FopdtFit`;
 - :mod:`.robust`, :mod:`.paper` - the two methods;
 - :mod:`.fit` - one record: :func:`fit_fopdt` (arrays), :func:`fit_recording`;
-- :mod:`.bags` - rosbag2 storage, read raw (bags are written in one place,
-  :mod:`hydropump_ctrl.recorder.bag`);
+- bags are read and written in one place, :mod:`hydropump_ctrl.bag`;
 - :mod:`.recording` - :class:`Recording`, bags decoded into named SI signals, ``.npz``;
 - :mod:`.pooling` - several sets: :func:`fit_recordings`, :func:`fit_bags`, the joint fit;
 - :mod:`.report` - tables, JSON, Markdown, Fig. 5 and 6;
@@ -33,10 +33,9 @@ Beyond eq. 19 (imported from their modules; they need the plant library's simula
 Pure Python: nothing here imports ROS.
 """
 
-from ..recorder.bag import write_bag
-from .bags import list_topics, match_topic
+from ..bag import BagError, BagReadError, list_topics, match_topic, write_bag
 from .diagnostics import FLAG_TEXT, FopdtFit
-from .errors import BagError, FitError, PlausibilityError
+from .errors import FitError, PlausibilityError
 from .fit import fit_fopdt, fit_recording, METHODS
 from .model import coefficients, fopdt_response, PAPER, PARAMS
 from .pooling import fit_bags, fit_joint, fit_recordings, Identification, pool, Pooled
@@ -45,7 +44,8 @@ from .report import format_table, to_dict, to_json, write_report
 from .signals import detect_dither, Dither, load_default_params, normalise
 
 __all__ = [
-    'BagError', 'Dither', 'FLAG_TEXT', 'FitError', 'FopdtFit', 'Identification', 'METHODS',
+    'BagError', 'BagReadError', 'Dither', 'FLAG_TEXT', 'FitError', 'FopdtFit', 'Identification',
+    'METHODS',
     'PAPER', 'PARAMS', 'PlausibilityError', 'Pooled', 'Recording', 'SIGNALS', 'coefficients',
     'detect_dither',
     'fit_bags', 'fit_fopdt', 'fit_joint', 'fit_recording', 'fit_recordings', 'fopdt_response',

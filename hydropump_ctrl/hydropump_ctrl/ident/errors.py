@@ -1,23 +1,23 @@
-"""The user errors of identification: a bag that cannot be read, data that cannot be fitted.
+"""The user errors of identification: data that cannot be fitted, and a bag whose data
+read but cannot be the pump's.
 
 Both are :class:`~hydropump_sim.errors.HydropumpError` (one line each, shown after ``error:``
 by the command line) and ``ValueError`` (bad input values, which is what callers catch);
-:class:`PlausibilityError` is the bag error of data that read but cannot be the pump's.
+a bag that cannot be read at all is a :class:`~hydropump_ctrl.bag.BagReadError`, of which
+:class:`PlausibilityError` is a kind.
 """
 
 from __future__ import annotations
 
 from hydropump_sim.errors import HydropumpError
 
-
-class BagError(HydropumpError, ValueError):
-    """A bag or saved recording that cannot be read as asked."""
+from ..bag.errors import BagReadError
 
 
 class FitError(HydropumpError, ValueError):
     """Data that cannot be identified (no excitation, NaNs, too short, bad options)."""
 
 
-class PlausibilityError(BagError):
+class PlausibilityError(BagReadError):
     """A bag whose data cannot be what the pump records: wrong units, wrong message types,
     two runs in one bag, too few samples (one line per problem)."""

@@ -31,13 +31,14 @@ refuse a bag. Nothing here imports ROS.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import numpy as np
 
 from hydropump_sim.measure import SIGNALS as MEASURED
 
+from ..bag.metadata import custom_data
 from .errors import PlausibilityError
 
 # The least record a fit or a calibration takes (a few time constants of the plant at 1 kHz).
@@ -170,42 +171,6 @@ def check_recordings(recs: Sequence, params, signals: Iterable[str] | None = Non
 #: what they mean for the record.
 EVENT_WORDS = {'safe_current': ('safe-current engagement', 'safe-current engagements'),
                'lock_step_timeout': ('lock-step timeout', 'lock-step timeouts')}
-
-
-def custom_data(path: str | Path) -> Mapping[str, str] | None:
-    """The ``custom_data`` of a bag (a directory, or one of its storage files), from its
-    ``metadata.yaml`` or else from the last ``rosbag2`` metadata record of an MCAP file;
-    ``None`` when the bag has none (a bag of another recorder, a killed one, not a bag)."""
-    from hydropump_sim.schema import read_yaml
-    path = Path(path)
-    meta = path / 'metadata.yaml' if path.is_dir() else path.with_name('metadata.yaml')
-    try:
-        if meta.is_file() and (path.is_dir() or path.name in meta.read_text()):
-            info = read_yaml(meta)['rosbag2_bagfile_information']
-            return info.get('custom_data') or None
-        if path.suffix == '.mcap' and path.is_file():
-            return _mcap_custom_data(path)
-    except Exception:  # noqa: BLE001 - an unreadable record tells nothing; reading says why
-        return None
-    return None
-
-
-def _mcap_custom_data(path: Path) -> Mapping[str, str] | None:
-    from mcap.records import Metadata
-    from mcap.stream_reader import StreamReader
-
-    from hydropump_sim.schema import parse_yaml
-    last = None
-    with path.open('rb') as f:
-        try:
-            for rec in StreamReader(f, record_size_limit=1 << 30).records:
-                if isinstance(rec, Metadata) and rec.name == 'rosbag2':
-                    last = rec.metadata.get('serialized_metadata')
-        except Exception:  # noqa: BLE001 - a truncated file: what was read before counts
-            pass
-    if last is None:
-        return None
-    return (parse_yaml(last, str(path)) or {}).get('custom_data') or None
 
 
 def _count(value) -> int:

@@ -250,7 +250,7 @@ def fit_bags(paths: Sequence, *, method: str = 'robust',
         For the normalisation; default ``config/pump.yaml``.
     allow_truncated : bool
         Fit the readable part of a truncated bag (flagged ``truncated_bag``) instead of
-        raising :class:`~.errors.BagError`.
+        raising :class:`~hydropump_ctrl.bag.BagReadError`.
 
     A bag whose current or flow cannot be the pump's (mA, L/min, the wrong message type, two
     runs, too few samples) raises :class:`~.errors.PlausibilityError` before any fit.

@@ -23,7 +23,7 @@ signal stamped on the grid (the simulator publishes every topic in one step) is 
 is. A signal other than the current and the flow is NaN where it has no value (before its
 first message, or outside its span) and may carry NaN itself (an undefined controller state).
 
-Every problem is a :class:`~.errors.BagError` with a one-line message. Nothing here imports
+Every problem is a :class:`~.errors.BagReadError` with a one-line message. Nothing here imports
 ROS.
 """
 
@@ -39,9 +39,19 @@ import numpy as np
 from hydropump_sim.measure import FLOAT64, JOINT_STATE
 from hydropump_sim.measure import SIGNALS as MEASURED
 
-from ..recorder.bag import write_bag
-from .bags import Bag, decode, existing, header_stamps, match_topic, one_line, open_bag, Stream
-from .errors import BagError, PlausibilityError
+from ..bag import (
+    Bag,
+    BagReadError,
+    decode,
+    existing,
+    header_stamps,
+    match_topic,
+    one_line,
+    open_bag,
+    Stream,
+    write_bag,
+)
+from .errors import PlausibilityError
 from .plausibility import check_recordings, MIN_SAMPLES, repeated_block, two_runs, wrong_type
 
 DEFAULT_CURRENT_TOPIC = 'solenoid_current'
@@ -147,12 +157,12 @@ class Recording:
         self.t = np.asarray(self.t, dtype=float)
         self.signals = {k: np.asarray(v, dtype=float) for k, v in self.signals.items()}
         if self.t.ndim != 1 or any(v.shape != self.t.shape for v in self.signals.values()):
-            raise BagError(f'{what}: time and signals must be 1-D arrays of equal length')
+            raise BagReadError(f'{what}: time and signals must be 1-D arrays of equal length')
         if self.t.size < 2:
-            raise BagError(f'{what}: fewer than 2 common samples')
+            raise BagReadError(f'{what}: fewer than 2 common samples')
         for role, sig in self.roles.items():
             if sig not in self.signals:
-                raise BagError(f'{what}: no signal {sig!r} to act as the {role}; it has: '
+                raise BagReadError(f'{what}: no signal {sig!r} to act as the {role}; it has: '
                                f'{", ".join(self.signals) or "none"}')
         role_of = {sig: role for role, sig in self.roles.items()}
         for k in self.signals:
@@ -208,14 +218,14 @@ class Recording:
         from scipy import signal as sg
         nyq = 0.5 / self.dt
         if not 0 < cutoff < nyq:
-            raise BagError(f'low-pass cutoff must be in (0, {nyq:g}) Hz, got {cutoff!r}')
+            raise BagReadError(f'low-pass cutoff must be in (0, {nyq:g}) Hz, got {cutoff!r}')
         sos = sg.butter(order, cutoff / nyq, output='sos')
         out = dict(self.signals)
         filters = dict(self.filters)
         for s in signals:
             name = self.roles.get(s, s)
             if name not in out:
-                raise BagError(f'unknown signal {s!r}: use current, flow or one of '
+                raise BagReadError(f'unknown signal {s!r}: use current, flow or one of '
                                f'{", ".join(out)}')
             x = out[name]
             if zero_phase:
@@ -234,7 +244,7 @@ class Recording:
         """
         q = int(q)
         if q < 1:
-            raise BagError(f'decimation factor must be a positive integer, got {q}')
+            raise BagReadError(f'decimation factor must be a positive integer, got {q}')
         return self._replace(t=self.t[::q], signals={k: v[::q] for k, v in self.signals.items()})
 
     def _replace(self, **kw) -> Recording:
@@ -275,7 +285,7 @@ class Recording:
             units = meta.pop('units', {})
             return cls(t=t, signals=signals, units=units, **meta)
         except (OSError, KeyError, ValueError, TypeError) as exc:
-            raise BagError(f'{path}: not a saved recording: {one_line(exc)}') from None
+            raise BagReadError(f'{path}: not a saved recording: {one_line(exc)}') from None
 
 
 def _two_signal_form(meta: dict, d) -> dict:
@@ -333,7 +343,7 @@ def _scalars(msgs: list, stream: Stream, where: str) -> np.ndarray:
     field_name = next((f for f in _SCALAR_FIELDS if isinstance(getattr(msgs[0], f, None),
                                                                 (int, float))), None)
     if field_name is None:
-        raise BagError(f'{where}: topic {stream.topic} ({stream.msgtype}) carries no single '
+        raise BagReadError(f'{where}: topic {stream.topic} ({stream.msgtype}) carries no single '
                        'number: use a std_msgs/msg/Float64 topic')
     return np.fromiter((getattr(m, field_name) for m in msgs), float, len(msgs))
 
@@ -343,7 +353,7 @@ def _entries(msgs: list, entries: Sequence[str], stream: Stream, where: str
     """Positions of the named entries of ``sensor_msgs/JointState`` messages (NaN where a
     message lacks one)."""
     if not hasattr(msgs[0], 'position'):
-        raise BagError(f'{where}: topic {stream.topic} ({stream.msgtype}) is not a '
+        raise BagReadError(f'{where}: topic {stream.topic} ({stream.msgtype}) is not a '
                        'sensor_msgs/msg/JointState')
     out = np.full((len(entries), len(msgs)), np.nan)
     for k, m in enumerate(msgs):
@@ -374,13 +384,13 @@ def _clean(t_ns: np.ndarray, cols: list[np.ndarray], topic: str, where: str, not
         bad = ~np.isfinite(cols[0])
         if bad.any():
             k = int(np.flatnonzero(bad)[0])
-            raise BagError(f'{where}: {topic} has {int(bad.sum())} NaN or infinite values '
+            raise BagReadError(f'{where}: {topic} has {int(bad.sum())} NaN or infinite values '
                            f'(first at t = {(t_ns[k] - t_ns[0]) * 1e-9:.6g} s)')
     keep = np.ones(t_ns.size, bool)
     keep[:-1] = t_ns[1:] != t_ns[:-1]
     repeated = int((~keep).sum())
     if repeated > max(10, 0.05 * t_ns.size):
-        raise BagError(f'{where}: {repeated} of the {t_ns.size} messages of {topic} repeat '
+        raise BagReadError(f'{where}: {repeated} of the {t_ns.size} messages of {topic} repeat '
                        'the time of another: the bag holds more than one run (a restarted '
                        'simulator, time going back); record one run per bag, or cut it '
                        'where time goes back')
@@ -412,12 +422,12 @@ def _grid(tc: np.ndarray, tf: np.ndarray, dt: float | None, where: str, notes: l
     else:
         p_ns = int(round(dt * 1e9))
     if p_ns <= 0:
-        raise BagError(f'{where}: the sample period must be positive')
+        raise BagReadError(f'{where}: the sample period must be positive')
     # The grid starts on the first flow sample that has a current (within half a period)
     # and ends with the flow: the current holds its last value.
     first = int(np.searchsorted(tf, tc[0] - p_ns // 2))
     if first >= tf.size or int(tf[-1]) <= int(tf[first]):
-        raise BagError(f'{where}: the current and flow topics do not overlap in time')
+        raise BagReadError(f'{where}: the current and flow topics do not overlap in time')
     t0 = int(tf[first])
     n = (int(tf[-1]) - t0) // p_ns + 1
     g = t0 + np.arange(n, dtype=np.int64) * p_ns
@@ -475,7 +485,7 @@ def _contract_topic(spec: SignalSpec, topics: dict, ns: str, where: str, strict:
         return near
     try:
         return match_topic(spec.topic, topics, where)
-    except BagError:
+    except BagReadError:
         if strict:
             raise
         return None
@@ -487,11 +497,11 @@ def _extras(signals, bag: Bag, roles: dict, where: str) -> dict[str, str]:
         return {}
     strict = not isinstance(signals, str)
     if not strict and signals != 'all':
-        raise BagError(f"signals must be 'all', None or a list of names, got {signals!r}")
+        raise BagReadError(f"signals must be 'all', None or a list of names, got {signals!r}")
     names = list(SIGNALS) if not strict else list(signals)
     unknown = [n for n in names if n not in SIGNALS]
     if unknown:
-        raise BagError(f'unknown signal {unknown[0]!r}: choose from {", ".join(SIGNALS)}')
+        raise BagReadError(f'unknown signal {unknown[0]!r}: choose from {", ".join(SIGNALS)}')
     ns = roles['flow'].rpartition('/')[0]
     out = {}
     for n in names:
@@ -541,7 +551,7 @@ def read_recording(path: str | Path, *, current_topic: str = DEFAULT_CURRENT_TOP
 
     Raises
     ------
-    BagError
+    BagReadError
         Missing path, not a bag, corrupt file, missing or ambiguous topic (the message lists
         the bag's topics), NaNs in the current or flow, no overlap.
     """
@@ -557,7 +567,7 @@ def read_recording(path: str | Path, *, current_topic: str = DEFAULT_CURRENT_TOP
     roles = {'current': match_topic(current_topic, bag.topics, where),
              'flow': match_topic(flow_topic, bag.topics, where)}
     if roles['current'] == roles['flow']:
-        raise BagError(f'{where}: current and flow are the same topic {roles["current"]}')
+        raise BagReadError(f'{where}: current and flow are the same topic {roles["current"]}')
     for topic in roles.values():
         spec = SIGNALS.get(topic.rsplit('/', 1)[-1])
         if spec is not None and spec.entry is None:
@@ -571,7 +581,7 @@ def read_recording(path: str | Path, *, current_topic: str = DEFAULT_CURRENT_TOP
     for role, topic in roles.items():
         if topic not in streams:
             why = f' before the bag was cut ({bag.truncation})' if bag.truncated else ''
-            raise BagError(f'{where}: topic {topic} has no readable messages{why}')
+            raise BagReadError(f'{where}: topic {topic} has no readable messages{why}')
         t_ns, msgs, src = _messages(streams[topic], where)
         t_ns, (v,) = _clean(t_ns, [_scalars(msgs, streams[topic], where)], topic, where,
                             notes, finite=True)
@@ -591,7 +601,7 @@ def read_recording(path: str | Path, *, current_topic: str = DEFAULT_CURRENT_TOP
                            strict=not isinstance(signals, str))
     for label_, topic in wanted.items():
         if topic not in streams:
-            raise BagError(f'{where}: topic {topic} has no readable messages')
+            raise BagReadError(f'{where}: topic {topic} has no readable messages')
         t_ns, msgs, src = _messages(streams[topic], where)
         t_ns, (v,) = _clean(t_ns, [_scalars(msgs, streams[topic], where)], topic, where,
                             notes, finite=False)
@@ -616,13 +626,13 @@ def _other_signals(signals: dict[str, str], streams: dict, g: np.ndarray, p_ns: 
     for topic, sigs in by_topic.items():
         try:
             if topic not in streams:
-                raise BagError(f'{where}: topic {topic} has no readable messages')
+                raise BagReadError(f'{where}: topic {topic} has no readable messages')
             t_ns, msgs, src = _messages(streams[topic], where)
             entries = [SIGNALS[s].entry for s in sigs]
             cols = (_entries(msgs, entries, streams[topic], where) if entries[0] else
                     [_scalars(msgs, streams[topic], where)])
             t_ns, cols = _clean(t_ns, cols, topic, where, notes, finite=False)
-        except BagError as exc:
+        except BagReadError as exc:
             if strict:
                 raise
             notes.append(f'{", ".join(sigs)} left out: {exc}')
@@ -636,7 +646,7 @@ def read_recordings(paths, *, allow_truncated: bool = False, progress: bool | No
                     params=None, check: Sequence[str] | None = None, **kw) -> list[Recording]:
     """Read several bags with :func:`read_recording` (keywords ``kw``).
 
-    A truncated bag raises :class:`~.errors.BagError` unless ``allow_truncated`` (then its
+    A truncated bag raises :class:`~.errors.BagReadError` unless ``allow_truncated`` (then its
     readable part is returned, marked ``truncated``). ``progress`` shows a tqdm bar
     (``None``: only on a terminal). With ``params`` (the pump's), every recording is checked
     against it before it is returned (:func:`.plausibility.check_recordings`: units, length),
@@ -653,7 +663,7 @@ def read_recordings(paths, *, allow_truncated: bool = False, progress: bool | No
                   is not None else None, leave=False):
         rec = read_recording(p, **kw)
         if rec.truncated and not allow_truncated:
-            raise BagError(f'{p}: the bag is truncated ({rec.truncation}); use '
+            raise BagReadError(f'{p}: the bag is truncated ({rec.truncation}); use '
                            'allow_truncated (--allow-truncated) to read its readable part')
         recs.append(rec)
     if params is not None:

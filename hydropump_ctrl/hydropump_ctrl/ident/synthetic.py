@@ -161,7 +161,7 @@ def plant_recording(params, current: np.ndarray, *, load_pressure: np.ndarray | 
 
     ``current`` is the absolute command [A] held over each sample; ``load_pressure`` gauge
     [Pa] (default: the params file's)."""
-    from hydropump_sim.measure import SIGNAL_OUTPUTS
+    from hydropump_sim.measure import PRESSURE_SIGNALS, SIGNAL_OUTPUTS
     from hydropump_sim.model import OUTPUTS
     from hydropump_sim.sensors import apply_profile
     from hydropump_sim.simulate import simulate
@@ -175,6 +175,6 @@ def plant_recording(params, current: np.ndarray, *, load_pressure: np.ndarray | 
     t = np.arange(n) * dt
     meas = apply_profile(profile, t, true) if profile is not None else true
     p_atm = params.fluid.p_atm
-    for s in ('line_pressure', 'load_pressure', 'actuator_pressure'):
+    for s in PRESSURE_SIGNALS:  # absolute, as the topics carry them
         meas[s] = meas[s] + p_atm
     return Recording(t, meas, name=name)

@@ -14,11 +14,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from hydropump_sim.measure import FLOAT64, JOINT_STATE
+from hydropump_sim.measure import FLOAT64, JOINT_STATE, suite_topics
 from hydropump_sim.measure import SIGNALS as MEASURED
 from hydropump_sim.schema import closest_name, spec
 
-from .bag import BagError, BagWriteError, BagWriter, message_definition, qos_profile, unique_path
+from ..bag import BagError, BagWriteError, BagWriter, message_definition, qos_profile, unique_path
 from .sequencer import Record, Sequencer
 from .session import DRAIN_TIMEOUT, header_stamp, Recorder, Session
 
@@ -37,7 +37,7 @@ SUITE_TYPES = {
     '/clock': 'rosgraph_msgs/msg/Clock',
     'events': 'diagnostic_msgs/msg/DiagnosticArray',
 }
-DEFAULT_TOPICS = ['solenoid_current_cmd', *_PLANT_TOPICS, 'controller/state']
+DEFAULT_TOPICS = suite_topics()
 
 
 @dataclass(frozen=True)

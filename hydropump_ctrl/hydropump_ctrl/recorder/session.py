@@ -49,7 +49,7 @@ import struct
 import time
 from typing import Any, Protocol
 
-from .bag import BagError, BagWriteError, open_unique, typestore
+from ..bag import BagError, BagWriteError, open_unique, typestore
 from .sequencer import Sequencer
 
 #: s: the default bound of a stop's drain (``RecorderConfig.drain_timeout``).
@@ -347,7 +347,8 @@ class Recorder:
     # ---- sessions ------------------------------------------------------------------------
 
     def start(self) -> Path:
-        """Open a bag (:class:`~.bag.BagError` with the reason if it cannot be made)."""
+        """Open a bag (:class:`~hydropump_ctrl.bag.BagError` with the reason if it cannot be
+        made)."""
         if self.failed is not None:
             raise BagError(f'recording failed: {self.failed}')
         if self.session is None:

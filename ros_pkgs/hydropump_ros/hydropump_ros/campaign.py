@@ -41,7 +41,7 @@ import tempfile
 import time
 from typing import TYPE_CHECKING
 
-from hydropump_ctrl.cli._common import float_in, int_in, Parser, UsageError
+from hydropump_ctrl.cli.options import float_in, int_in, Parser, UsageError
 from hydropump_sim.errors import HydropumpError
 
 from .orchestration import starting, stop_on_sigterm

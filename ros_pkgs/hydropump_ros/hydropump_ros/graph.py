@@ -19,60 +19,47 @@ import subprocess
 import sys
 import time
 
-from hydropump_ctrl.cli._common import float_in, int_in, Parser, UsageError
+from hydropump_ctrl.cli.options import float_in, int_in, Parser, UsageError
 from hydropump_ctrl.foxglove import FoxgloveConfig
 from hydropump_sim.params import default_params_path
 from hydropump_sim.schema import spec_map
 
-NODES = ('simulator', 'controller', 'recorder')
+from .command_line import node_command, NODES
+
 #: The foxglove node's address parameters (their defaults and range: one source of truth).
 FOXGLOVE = spec_map(FoxgloveConfig)
 
 
-def executable(node: str) -> str:
-    """``<prefix>/lib/hydropump_ros/<node>``, as ``ros2 run`` finds it."""
-    return str(Path(sys.prefix) / 'lib' / 'hydropump_ros' / node)
-
-
-def _p(name: str, value) -> list[str]:
-    text = str(value).lower() if isinstance(value, bool) else str(value)
-    return ['-p', f'{name}:={text}']
-
-
 def graph_commands(args) -> dict[str, list[str]]:
-    """The three command lines, as the launch file builds them."""
-    common = ['--log-level', args.log_level]
-    if args.namespace:
-        common += ['-r', f'__ns:={"/" + args.namespace.lstrip("/")}']
-    common += _p('use_sim_time', args.use_sim_time)
-    sim = ['--params-file', str(args.params_file)]
-    if args.sensor_profile:
-        sim += ['--params-file', str(args.sensor_profile)]
-    sim += (_p('lock_step', args.lock_step) + _p('real_time_factor', args.real_time_factor)
-            + _p('start_paused', args.start_paused))
+    """The node command lines, as the launch file builds them."""
+    sim = {'use_sim_time': args.use_sim_time, 'lock_step': args.lock_step,
+           'real_time_factor': args.real_time_factor, 'start_paused': args.start_paused}
     if args.scenario_file:
-        sim += _p('scenario_file', args.scenario_file)
+        sim['scenario_file'] = args.scenario_file
     if args.circuit_file:
-        sim += _p('circuit_file', args.circuit_file)
+        sim['circuit_file'] = args.circuit_file
     # Lock-step: a simulation held back by a slow peer is no fault of the measurements.
-    ctrl = _p('autostart', not args.no_autostart) + _p('watchdog.simulation_time',
-                                                        args.lock_step)
+    ctrl = {'use_sim_time': args.use_sim_time, 'autostart': not args.no_autostart,
+            'watchdog.simulation_time': args.lock_step}
     if args.controller_params:
-        ctrl += _p('config_file', args.controller_params)
-    rec = _p('compression', args.compression)
+        ctrl['config_file'] = args.controller_params
+    rec = {'use_sim_time': args.use_sim_time, 'compression': args.compression}
     if args.bag:
-        rec += _p('output', args.bag)
-    topics = args.topics
+        rec['output'] = args.bag
+    topics = args.topics.split(',') if args.topics else None
     if not topics and args.circuit_file:
         from hydropump_sim.measure import recorded_topics
-        topics = ','.join(recorded_topics(args.circuit_file))
+        topics = recorded_topics(args.circuit_file)
     if topics:
-        rec += _p('topics', '[' + topics + ']')
-    cmds = {'simulator': sim, 'controller': ctrl, 'recorder': rec}
+        rec['topics'] = topics
+    params = {'simulator': sim, 'controller': ctrl, 'recorder': rec}
     if args.foxglove is not None:
         # Its default topics, and discovery, take what a circuit adds as it appears.
-        cmds['foxglove'] = _p('port', args.foxglove)
-    return {k: [executable(k), '--ros-args', *common, *v] for k, v in cmds.items()
+        params['foxglove'] = {'use_sim_time': args.use_sim_time, 'port': args.foxglove}
+    files = {'simulator': [args.params_file, *([args.sensor_profile] if args.sensor_profile
+                                               else [])]}
+    return {k: node_command(k, v, namespace=args.namespace, log_level=args.log_level,
+                            params_files=files.get(k, ())) for k, v in params.items()
             if k not in (args.without or [])}
 
 

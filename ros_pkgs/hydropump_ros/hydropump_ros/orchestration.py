@@ -31,6 +31,8 @@ from typing import TYPE_CHECKING
 
 from hydropump_sim.errors import HydropumpError
 
+from .command_line import node_command
+
 if TYPE_CHECKING:  # light to import: a signal handler of the run uses stop()
     from hydropump_ctrl.experiments.campaign import Experiment
 
@@ -86,29 +88,6 @@ def stop_on_sigterm(exc: Callable[[], BaseException] | None = None) -> None:
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
         stop(exc())
     signal.signal(signal.SIGTERM, on_sigterm)
-
-
-def executable(name: str) -> str:
-    """``<prefix>/lib/hydropump_ros/<name>``, as ``ros2 run`` finds it."""
-    from ament_index_python.packages import get_package_prefix
-    return str(Path(get_package_prefix('hydropump_ros')) / 'lib' / 'hydropump_ros' / name)
-
-
-def _ros_value(v) -> str:
-    if isinstance(v, bool):
-        return 'true' if v else 'false'
-    if isinstance(v, float):
-        return repr(v)
-    if isinstance(v, (list, tuple)):
-        return '[' + ', '.join(str(x) for x in v) + ']'
-    return str(v)
-
-
-def _ros_args(values: dict) -> list[str]:
-    out = []
-    for k, v in values.items():
-        out += ['-p', f'{k}:={_ros_value(v)}']
-    return out
 
 
 def _stamp_s(stamp) -> float:
@@ -230,7 +209,8 @@ PUBLISH_RATE = 200.0
 #: changes, must slow the run down, never trip a node's watchdog.
 LONG_WAITS = {'simulator': {'lock_step_timeout': 60.0, 'wait_subscribers': 1},
               'controller': {'watchdog.safe_timeout': 60.0, 'watchdog.hold_timeout': 30.0}}
-NODES = ('recorder', 'simulator', 'controller')
+# The order the graph starts its nodes in (the recorder first: it misses nothing).
+START_ORDER = ('recorder', 'simulator', 'controller')
 #: Sleep between spins while waiting for simulation time [s] (Orchestrator.spin_until).
 CLOCK_POLL = 0.003
 # A pause_at every simulation time has passed: the simulator pauses at the step it is at.
@@ -288,21 +268,20 @@ class Graph:
         ctrl = {'autostart': True, **LONG_WAITS['controller']}
         if controller_file:
             ctrl['config_file'] = str(Path(controller_file).resolve())
-        ns = ['-r', f'__ns:={orch.namespace}'] if orch.namespace else []
         commands = {
-            'recorder': ['-p', 'autostart:=false', '-p', f'topics:={_ros_value(topics)}'],
-            'simulator': _ros_args(sim),
-            'controller': _ros_args(ctrl),
+            'recorder': {'autostart': False, 'topics': list(topics)},
+            'simulator': sim,
+            'controller': ctrl,
         }
         t0 = time.perf_counter()
         try:
             # Each node in orch.procs as it starts: whatever interrupts the start-up (a
             # signal included) ends those already started.
-            for name in NODES:
+            for name in START_ORDER:
                 log = log_dir / f'{name}.log'
                 with starting():
                     orch.procs[name] = (subprocess.Popen(
-                        [executable(name), '--ros-args', *ns, *commands[name]],
+                        node_command(name, commands[name], namespace=orch.namespace),
                         stdout=open(log, 'w'), stderr=subprocess.STDOUT), log, 'the graph')
             graph._wait_ready(t0, 60.0)
             graph._prime()

@@ -22,6 +22,7 @@ import math
 
 import numpy as np
 
+from hydropump_sim.measure import FLOW_SIGNALS, LINE_FLOW_SIGNAL, LOAD_FLOW_SIGNAL
 from hydropump_sim.params import Params
 from hydropump_sim.schema import spec_map
 
@@ -29,7 +30,8 @@ from .data import Experiment
 
 SETTLED = 0.4     # s after a change of the inputs before a stair counts as settled
 WINDOW = 0.15     # s of the stair's end that are averaged
-FLOWS = ('load_flow', 'line_flow', 'pump_flow')
+# The flows a stair's rest is read from: the load's own first (measure.LOAD_FLOW_SIGNAL).
+FLOWS = (LOAD_FLOW_SIGNAL, *(f for f in FLOW_SIGNALS if f != LOAD_FLOW_SIGNAL))
 
 
 def _stairs(exp: Experiment) -> list[slice]:
@@ -93,8 +95,8 @@ def _mu_a(params: Params, exps: Sequence[Experiment], p_a: float) -> float | Non
     sp, ac = params.spool, params.actuator
     taus = []
     for e in exps:
-        flow = next((s for s in ('line_flow', 'pump_flow', 'load_flow') if s in e.measured),
-                    None)
+        # The line's flow first (eq. 19's output: its lag is the time constant sought).
+        flow = next((s for s in (LINE_FLOW_SIGNAL, *FLOW_SIGNALS) if s in e.measured), None)
         if flow is None or np.ptp(e.current) <= 0:
             continue
         y = e.measured[flow]

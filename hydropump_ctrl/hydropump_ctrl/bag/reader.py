@@ -1,14 +1,14 @@
 """rosbag2 storage: open a bag in any accepted form, read raw messages, write bags.
 
 Accepted: a bag directory (``metadata.yaml`` and ``.mcap`` or ``.db3`` files) as written by
-the project's recorder (``rosbags``) or by ``ros2 bag record``; a single ``.mcap`` or ``.db3``
+the project's recorder (:mod:`.writer`) or by ``ros2 bag record``; a single ``.mcap`` or ``.db3``
 file; a compressed bag; a bag whose recorder was killed (an MCAP file without footer and
 summary, perhaps no ``metadata.yaml``), read with the ``mcap`` library's streaming reader up
 to its last whole record and marked truncated. Topic names match exactly or by a unique
 suffix (:func:`match_topic`).
 
 This module knows storage formats and message types, not what the signals mean (that is
-:mod:`.recording`). Every problem is a :class:`~.errors.BagError` with a one-line message.
+:mod:`.recording`). Every problem is a :class:`~.errors.BagReadError` with a one-line message.
 Nothing here imports ROS.
 """
 
@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from ..recorder.bag import typestore
-from .errors import BagError
+from .errors import BagReadError
+from .writer import typestore
 
 MCAP_MAGIC = b'\x89MCAP0\r\n'
 SQLITE_MAGIC = b'SQLite format 3\x00'
@@ -56,9 +56,9 @@ class Bag:
     notes: list = field(default_factory=list)
 
 
-def _not_a_bag(path: Path, why: str = '') -> BagError:
+def _not_a_bag(path: Path, why: str = '') -> BagReadError:
     extra = f' ({why})' if why else ''
-    return BagError(f'{path} is not a rosbag2 bag{extra}: give a bag directory with '
+    return BagReadError(f'{path} is not a rosbag2 bag{extra}: give a bag directory with '
                     'metadata.yaml, an .mcap or .db3 file, or a saved .npz recording')
 
 
@@ -71,7 +71,7 @@ def _magic(path: Path, n: int) -> bytes:
         with path.open('rb') as f:
             return f.read(n)
     except OSError as exc:
-        raise BagError(f'{path}: cannot read: {exc.strerror or exc}') from None
+        raise BagReadError(f'{path}: cannot read: {exc.strerror or exc}') from None
 
 
 def _read_rosbags(path: Path, want: list[str] | None):
@@ -130,7 +130,7 @@ def _stream_mcap(path: Path, want: list[str] | None):
             where = (f'stopped after {n_msgs} messages at byte {f.tell()}: '
                      f'{type(exc).__name__} {one_line(exc) if str(exc) else ""}'.strip())
     if not chans and not complete:
-        raise BagError(f'{path}: truncated MCAP with no readable channel ({where})')
+        raise BagReadError(f'{path}: truncated MCAP with no readable channel ({where})')
     topics = {t: m for t, m, _ in chans.values()}
     return topics, streams, complete, where
 
@@ -168,7 +168,7 @@ def open_bag(path: Path, want: list[str] | None) -> tuple[Bag, dict]:
             missing = [f.name for f in listed if not f.exists()]
             present = [f for f in listed if f.exists()]
             if not present:
-                raise BagError(f'{path}: the storage files of metadata.yaml are missing: '
+                raise BagReadError(f'{path}: the storage files of metadata.yaml are missing: '
                                f'{", ".join(missing)}')
             notes = [f'storage files missing: {", ".join(missing)}'] if missing else []
             return _open_files(path, present, want, notes)
@@ -189,7 +189,7 @@ def _open_compressed(path: Path, want) -> tuple[Bag, dict]:
     try:
         topics, streams = _read_rosbags(path, want)
     except Exception as exc:  # noqa: BLE001 - yaml, sqlite3, zstd and rosbags errors
-        raise BagError(f'{path}: cannot read the compressed bag: {one_line(exc)}') from None
+        raise BagReadError(f'{path}: cannot read the compressed bag: {one_line(exc)}') from None
     return Bag(path, topics), streams
 
 
@@ -200,14 +200,14 @@ def _open_files(path: Path, files: list[Path], want, notes) -> tuple[Bag, dict]:
     for f in files:
         if f.suffix == '.db3':
             if not _magic(f, 16).startswith(SQLITE_MAGIC):
-                raise BagError(f'{f}: not an SQLite database (corrupt or not a bag)')
+                raise BagReadError(f'{f}: not an SQLite database (corrupt or not a bag)')
             try:
                 topics, part = _read_rosbags(f, want)
             except Exception as exc:  # noqa: BLE001 - sqlite3 raises several kinds
-                raise BagError(f'{f}: cannot read the sqlite3 bag: {one_line(exc)}') from None
+                raise BagReadError(f'{f}: cannot read the sqlite3 bag: {one_line(exc)}') from None
         else:
             if not _magic(f, 8).startswith(MCAP_MAGIC):
-                raise BagError(f'{f}: not an MCAP file (bad magic): corrupt or not a bag')
+                raise BagReadError(f'{f}: not an MCAP file (bad magic): corrupt or not a bag')
             try:
                 topics, part = _read_rosbags(f, want)
             except Exception:  # noqa: BLE001 - no footer, bad index: stream what is there
@@ -234,10 +234,10 @@ def list_topics(path: str | Path) -> dict[str, str]:
 
 
 def existing(path) -> Path:
-    """``path`` as a ``Path``; :class:`~.errors.BagError` when there is nothing there."""
+    """``path`` as a ``Path``; :class:`~.errors.BagReadError` when there is nothing there."""
     path = Path(path)
     if not path.exists():
-        raise BagError(f'{path}: no such file or directory')
+        raise BagReadError(f'{path}: no such file or directory')
     return path
 
 
@@ -249,7 +249,7 @@ def match_topic(name: str, topics, where: str = 'the bag') -> str:
     """
     bare = name.strip('/')
     if not bare:
-        raise BagError('empty topic name')
+        raise BagReadError('empty topic name')
     for cand in (name, '/' + bare):
         if cand in topics:
             return cand
@@ -257,10 +257,10 @@ def match_topic(name: str, topics, where: str = 'the bag') -> str:
     if len(hits) == 1:
         return hits[0]
     if hits:
-        raise BagError(f"topic '{name}' is ambiguous in {where}: {', '.join(hits)}; "
+        raise BagReadError(f"topic '{name}' is ambiguous in {where}: {', '.join(hits)}; "
                        'give the full name')
     have = ', '.join(f'{t} ({m})' for t, m in sorted(dict(topics).items())) or 'no topics'
-    raise BagError(f"{where} has no topic '{name}'; it has: {have}")
+    raise BagReadError(f"{where} has no topic '{name}'; it has: {have}")
 
 
 # --------------------------------------------------------------------------------------------
@@ -276,7 +276,7 @@ def _decoder(msgtype: str, msgdef: str):
         except Exception:  # noqa: BLE001 - an unusable definition is reported below
             pass
     if msgtype not in ts.types:
-        raise BagError(f'message type {msgtype} is unknown and the bag carries no definition')
+        raise BagReadError(f'message type {msgtype} is unknown and the bag carries no definition')
     return lambda raw: ts.deserialize_cdr(raw, msgtype)
 
 
@@ -286,12 +286,12 @@ def decode(stream: Stream, where: str) -> list:
     A type the store does not know is registered from the definition the bag carries.
     """
     if not stream.raw:
-        raise BagError(f'{where}: topic {stream.topic} has no messages')
+        raise BagReadError(f'{where}: topic {stream.topic} has no messages')
     dec = _decoder(stream.msgtype, stream.msgdef)
     try:
         return [dec(r) for r in stream.raw]
     except Exception as exc:  # noqa: BLE001 - corrupt payloads raise many kinds
-        raise BagError(f'{where}: cannot decode {stream.topic} ({stream.msgtype}): '
+        raise BagReadError(f'{where}: cannot decode {stream.topic} ({stream.msgtype}): '
                        f'{one_line(exc)}') from None
 
 

@@ -16,8 +16,10 @@ A bag is a folder ``<bag>/`` holding ``<bag>_0.mcap`` and, once closed, ``metada
 - ``metadata.yaml`` in yaml-cpp's block layout, written atomically at close, with
   ``ros_distro: jazzy`` and ``custom_data`` (string to string).
 
-Every problem a user can cause (an existing or unwritable folder) is a :class:`BagError`.
-A write that fails (disk full, a file-size limit, an I/O error) is a :class:`BagWriteError`,
+Every problem a user can cause (an existing or unwritable folder) is a
+:class:`~.errors.BagOutputError`.
+A write that fails (disk full, a file-size limit, an I/O error) is a
+:class:`~.errors.BagWriteError`,
 raised once the bag is closed with what it had: the MCAP bytes reach the file only at chunk
 boundaries, so the file is cut back to the last whole chunk and ended there (a valid MCAP,
 with ``metadata.yaml`` if there is room for it), and the writer takes nothing more.
@@ -40,31 +42,15 @@ from mcap.records import DataEnd, Footer, Metadata
 from mcap.writer import CompressionType, MCAP0_MAGIC, Writer
 import numpy as np
 
-from hydropump_sim.errors import HydropumpError
 from hydropump_sim.measure import FLUID_PRESSURE, JOINT_STATE
+
+from .errors import BagExistsError, BagOutputError, BagWriteError
 
 INT64_MAX = 2 ** 63 - 1
 INFINITE = {'sec': 9223372036, 'nsec': 854775807}   # RMW_DURATION_INFINITE
 ROS_DISTRO = 'jazzy'
 CHUNK_SIZE = 768 * 1024                             # rosbag2's MCAP default
 COMPRESSION = {'none': CompressionType.NONE, 'zstd': CompressionType.ZSTD}
-
-
-class BagError(HydropumpError, OSError):
-    """A bag that cannot be written as asked."""
-
-
-class BagExistsError(BagError):
-    """The bag folder exists already (a bag is never overwritten)."""
-
-
-class BagWriteError(BagError):
-    """Writing failed (disk full, file too large, I/O error); the bag is closed with the
-    messages written before (:attr:`messages` of them)."""
-
-    def __init__(self, text: str, path: Path, reason: str, messages: int):
-        super().__init__(text)
-        self.path, self.reason, self.messages = path, reason, messages
 
 
 def os_reason(exc: OSError) -> str:
@@ -187,7 +173,8 @@ def message_definition(msgtype: str) -> tuple[str, str]:
         text, _ = store.generate_msgdef(msgtype, ros_version=2)
         return text, store.hash_rihs01(msgtype)
     except Exception as exc:  # rosbags raises its own errors for unknown types
-        raise BagError(f'message type {msgtype}: unknown to the bag writer ({exc})') from None
+        raise BagOutputError(f'message type {msgtype}: unknown to the bag writer ({exc})') \
+            from None
 
 
 # ---- the writer ----------------------------------------------------------------------------
@@ -211,7 +198,8 @@ class BagWriter:
     def __init__(self, path: str | os.PathLike, *, compression: str = 'zstd',
                  chunk_period: float = 0.25, custom_data: Mapping[str, str] | None = None):
         if compression not in COMPRESSION:
-            raise BagError(f'compression = {compression!r}: use one of {", ".join(COMPRESSION)}')
+            raise BagOutputError(f'compression = {compression!r}: use one of '
+                                 f'{", ".join(COMPRESSION)}')
         self.path = Path(path)
         self.file_name = f'{self.path.name}_0.mcap'
         self.compression = compression
@@ -239,19 +227,19 @@ class BagWriter:
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
-            raise BagError(f'{self.path}: cannot create the bag: {exc.strerror or exc}') \
+            raise BagOutputError(f'{self.path}: cannot create the bag: {exc.strerror or exc}') \
                 from None
         try:
             self.path.mkdir()  # atomic: two recorders never share a folder
         except FileExistsError:
             raise exists from None
         except OSError as exc:
-            raise BagError(f'{self.path}: cannot create the bag: {exc.strerror or exc}') \
+            raise BagOutputError(f'{self.path}: cannot create the bag: {exc.strerror or exc}') \
                 from None
         try:
             fd = os.open(self.path / self.file_name, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         except OSError as exc:
-            raise BagError(f'{self.path}: cannot create the bag: {exc.strerror or exc}') \
+            raise BagOutputError(f'{self.path}: cannot create the bag: {exc.strerror or exc}') \
                 from None
         self._fh = _FileSink(fd)
         self._mcap = Writer(self._fh, chunk_size=CHUNK_SIZE,
@@ -263,7 +251,7 @@ class BagWriter:
         except OSError as exc:
             os.close(fd)
             self._fh = self._mcap = None
-            raise BagError(f'{self.path}: cannot write the bag: {os_reason(exc)}') from None
+            raise BagOutputError(f'{self.path}: cannot write the bag: {os_reason(exc)}') from None
         self._mark()
         return self
 
@@ -302,7 +290,7 @@ class BagWriter:
         """One serialized message at log time ``log_ns`` [ns]; :class:`BagWriteError` if the
         file cannot take it (the bag is then closed, see the module)."""
         if self._mcap is None:
-            raise self.failed or BagError(f'{self.path}: the bag is closed')
+            raise self.failed or BagOutputError(f'{self.path}: the bag is closed')
         t = self._topics[topic]
         if self._chunk_end is None:
             self._chunk_end = (log_ns // self._period_ns + 1) * self._period_ns
@@ -463,7 +451,7 @@ def unique_path(path: str | os.PathLike) -> Path:
             path = base.with_name(f'{base.name}_{n}')
             n += 1
     except OSError as exc:  # a name too long, a path through a file: exists() raises
-        raise BagError(f'{path}: cannot create the bag: {exc.strerror or exc}') from None
+        raise BagOutputError(f'{path}: cannot create the bag: {exc.strerror or exc}') from None
     return path
 
 
@@ -503,7 +491,7 @@ def write_bag(path: str | os.PathLike, streams: Mapping[str, tuple[str, Any, Any
     storage : {'mcap', 'sqlite3'}
     """
     if storage not in ('mcap', 'sqlite3'):
-        raise BagError(f'storage = {storage!r}: use mcap or sqlite3')
+        raise BagOutputError(f'storage = {storage!r}: use mcap or sqlite3')
     ts = typestore()
     events = []
     for topic, (msgtype, t, vals) in streams.items():
