@@ -47,7 +47,7 @@ lint: $(STAMP)
 test: lint
 	$(BIN)/python -m pytest -n 2 --dist loadfile; rc=$$?; [ $$rc -eq 5 ] && rc=0; exit $$rc
 
-# Every benchmark, then the README's benchmark table from bench/results.json.
+# Every benchmark, then the table of bench/README.md from bench/results.json.
 bench: $(STAMP)
 	$(BIN)/python bench/run_all.py
 	$(BIN)/python docs/generate_tables.py

@@ -1,5 +1,5 @@
 """Run every ``bench/bench_*.py`` in turn, print one table of figures and ratios, and write
-them to ``bench/results.json``, from which ``docs/generate_tables.py`` writes the README's
+them to ``bench/results.json``, from which ``docs/generate_tables.py`` writes the
 benchmark table (so no figure there is one no command produced).
 
     .venv/bin/python bench/run_all.py [bench_calibrate ...]   # all, or the ones named
@@ -51,7 +51,8 @@ def main(argv=None) -> int:
                                     'rows': [{k: v for k, v in r.items() if k != 'bench'}
                                              for r in rows if r['bench'] == bench]}
     RESULTS.write_text(json.dumps(old, indent=1) + '\n')
-    print(f'wrote {RESULTS.relative_to(HERE.parent)}; README: docs/generate_tables.py')
+    print(f'wrote {RESULTS.relative_to(HERE.parent)}; the table of bench/README.md: '
+          'docs/generate_tables.py')
     if failed:
         print(f'failed: {", ".join(failed)}', file=sys.stderr)
     return 1 if failed else 0

@@ -1,5 +1,6 @@
-"""Write the parameter tables of README.md and docs/parameters.md from the schemas, and the
-README's benchmark table from ``bench/results.json`` (what ``make bench`` measured).
+"""Write the parameter tables of docs/ros.md and docs/parameters.md from the schemas, and the
+benchmark table of bench/README.md from ``bench/results.json`` (what ``make bench``
+measured).
 
     .venv/bin/python docs/generate_tables.py          # rewrite the tables in place
     .venv/bin/python docs/generate_tables.py --check  # exit 1 if a table is out of date
@@ -31,7 +32,7 @@ TABLES = {
     'recorder': RecorderConfig, 'plant': Params, 'sensors': SensorConfig,
     'control': ControllerConfig,
 }
-FILES = (ROOT / 'README.md', ROOT / 'docs' / 'parameters.md')
+FILES = (ROOT / 'docs' / 'ros.md', ROOT / 'docs' / 'parameters.md', ROOT / 'bench' / 'README.md')
 
 
 def table(name: str) -> str:
@@ -46,8 +47,8 @@ def _value(v: float) -> str:
 
 
 def bench_table() -> str:
-    """The README's benchmark table: every row ``bench/results.json`` holds, by benchmark,
-    with its goal, whether it was met, and the run it comes from."""
+    """The benchmark table of bench/README.md: every row ``bench/results.json`` holds, by
+    benchmark, with its goal, whether it was met, and the run it comes from."""
     data = json.loads(BENCH_RESULTS.read_text()) if BENCH_RESULTS.exists() else {}
     out = ['| benchmark | figure | value | goal | note |', '| --- | --- | --- | --- | --- |']
     runs = []

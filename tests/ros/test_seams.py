@@ -351,7 +351,7 @@ def test_a_controller_resumes_bumplessly_when_its_simulator_restarts(nodes, test
 
 def test_the_nodes_declare_their_schemas_defaults(nodes, test_node):
     """What `ros2 param get` shows on nodes started with no parameters is what the schemas
-    (and so the README's tables) say, and the plant is config/pump.yaml."""
+    (and so the tables of docs/ros.md) say, and the plant is config/pump.yaml."""
     from rcl_interfaces.srv import GetParameters
     from rclpy.parameter import parameter_value_to_python
 

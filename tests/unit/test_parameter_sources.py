@@ -22,7 +22,7 @@ def test_the_parameter_tables_are_generated_from_the_schemas():
     proc = subprocess.run([sys.executable, str(ROOT / 'docs' / 'generate_tables.py'),
                            '--check'], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
-    readme = (ROOT / 'README.md').read_text()
+    readme = (ROOT / 'docs' / 'ros.md').read_text()
     for name in ('simulator', 'controller', 'recorder'):
         assert f'<!-- BEGIN params:{name} -->' in readme, name
 
@@ -30,9 +30,9 @@ def test_the_parameter_tables_are_generated_from_the_schemas():
 @pytest.mark.parametrize('cls, node', [(SimulatorConfig, 'simulator'),
                                        (ControllerNodeConfig, 'controller'),
                                        (RecorderConfig, 'recorder')])
-def test_the_readme_tables_show_the_schema_defaults(cls, node):
+def test_the_node_parameter_tables_show_the_schema_defaults(cls, node):
     from hydropump_sim.schema import default_text
-    readme = (ROOT / 'README.md').read_text()
+    readme = (ROOT / 'docs' / 'ros.md').read_text()
     block = readme.split(f'<!-- BEGIN params:{node} -->')[1].split('<!-- END')[0]
     rows = {line.split('|')[1].strip().strip('`'): line.split('|')[2].strip()
             for line in block.strip().splitlines()[2:]}

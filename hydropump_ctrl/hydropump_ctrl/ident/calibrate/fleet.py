@@ -146,7 +146,7 @@ def calibrate_pump(item, job: dict) -> PumpResult:
     """One pump's calibration (what a task runs): ``item`` is ``(name, recordings)``,
     ``job`` the shared start, free parameters and options. A calibration the data refuse is
     the result's ``reason``, not an exception."""
-    from . import calibrate
+    from .calibration import calibrate
     name, recs = item
     t0 = time.perf_counter()
     sources = _sources(recs)
