@@ -23,7 +23,6 @@ from __future__ import annotations
 
 from collections.abc import Collection, Mapping
 from dataclasses import dataclass, field
-import math
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +31,7 @@ import numpy as np
 from .errors import HydropumpError
 from .inputs import held
 from .params import check_input, default_params_path, INPUTS, load_params, Params
-from .schema import ParamError, read_yaml, text_number_hint, unknown_key_line
+from .schema import check_number, ParamError, read_yaml, unknown_key_line
 
 SIGNALS = {
     'current': ('A', 'absolute solenoid current'),
@@ -85,19 +84,11 @@ class Scenario:
     output: str | None = None
 
 
-def _number(v: Any, where: str, errors: list[str]) -> float | None:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        hint = text_number_hint(v)
-        errors.append(f'{where} = {v!r}: expected a finite number{hint}')
-        return None
-    return float(v)
-
-
 def parse_signal(spec: Any, name: str, errors: list[str]) -> Signal | None:
     """Build a :class:`Signal` from its YAML form, appending problems to ``errors``."""
     where = f'inputs.{name}'
     if not isinstance(spec, Mapping):
-        v = _number(spec, where, errors)
+        v = check_number(spec, where, errors)
         return None if v is None else Signal(offset=v)
     unknown = set(spec) - _SIGNAL_KEYS
     if unknown:
@@ -119,8 +110,8 @@ def parse_signal(spec: Any, name: str, errors: list[str]) -> Signal | None:
                 if not (isinstance(pair, (list, tuple)) and len(pair) == 2):
                     errors.append(f'{where}.{key}[{i}] = {pair!r}: expected [t, value]')
                     return None
-                t = _number(pair[0], f'{where}.{key}[{i}] time', errors)
-                v = _number(pair[1], f'{where}.{key}[{i}] value', errors)
+                t = check_number(pair[0], f'{where}.{key}[{i}] time', errors)
+                v = check_number(pair[1], f'{where}.{key}[{i}] value', errors)
                 if t is None or v is None:
                     return None
                 pts.append((t, v))
@@ -132,7 +123,7 @@ def parse_signal(spec: Any, name: str, errors: list[str]) -> Signal | None:
     if 'offset' in spec:
         if kind != 'constant':
             errors.append(f'{where}: offset only goes with a sine, not with {kind}')
-        offset = _number(spec['offset'], f'{where}.offset', errors) or 0.0
+        offset = check_number(spec['offset'], f'{where}.offset', errors) or 0.0
     sine = (0.0, 0.0, 0.0, 0.0)
     if 'sine' in spec:
         s = spec['sine']
@@ -142,7 +133,7 @@ def parse_signal(spec: Any, name: str, errors: list[str]) -> Signal | None:
         bad = set(s) - _SINE_KEYS
         if bad:
             errors.append(f'{where}.sine: unknown key(s) {", ".join(sorted(map(str, bad)))}')
-        vals = [_number(s.get(k, 0.0), f'{where}.sine.{k}', errors) for k in
+        vals = [check_number(s.get(k, 0.0), f'{where}.sine.{k}', errors) for k in
                 ('amplitude', 'frequency', 'phase', 'start')]
         if any(v is None for v in vals):
             return None
@@ -222,12 +213,12 @@ def load_scenario(path: str | Path, names: Collection[str] | None = None) -> Sce
     errors: list[str] = []
     for key in set(doc) - _TOP_KEYS:
         errors.append(f'{key}: unknown key (use {", ".join(sorted(_TOP_KEYS))})')
-    duration = _number(doc.get('duration'), 'duration', errors) if 'duration' in doc else None
+    duration = check_number(doc.get('duration'), 'duration', errors) if 'duration' in doc else None
     if 'duration' not in doc:
         errors.append('duration: missing (s)')
     elif duration is not None and duration <= 0:
         errors.append(f'duration = {duration}: must be positive (s)')
-    dt_out = _number(doc.get('dt_out', 1.0e-3), 'dt_out', errors)
+    dt_out = check_number(doc.get('dt_out', 1.0e-3), 'dt_out', errors)
     if dt_out is not None and dt_out <= 0:
         errors.append(f'dt_out = {dt_out}: must be positive (s)')
     model = doc.get('model', 'fine')

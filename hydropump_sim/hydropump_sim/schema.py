@@ -205,6 +205,23 @@ def text_number_hint(value: Any) -> str:
     return ' (YAML read it as text: write a dot and a signed exponent, e.g. 1.5e+9)'
 
 
+def check_number(value: Any, where: str, errors: list[str], *, unit: str = '',
+                 sign: str = '') -> float | None:
+    """``value`` as a float if it is a finite number (and ``sign`` holds: ``'> 0'`` or
+    ``'>= 0'``), else ``None`` and one line in ``errors``, with the hint for a number YAML
+    read as text: the one number check of every file format (scenarios, recording plans,
+    sweep specs)."""
+    ok = not isinstance(value, bool) and isinstance(value, (int, float)) and \
+        math.isfinite(value)
+    if ok and sign:
+        ok = value > 0 if sign == '> 0' else value >= 0
+    if ok:
+        return float(value)
+    errors.append(f'{where} = {value!r}: expected a finite number{" " + sign if sign else ""}'
+                  f'{f" ({unit})" if unit else ""}{text_number_hint(value)}')
+    return None
+
+
 def range_text(s: ParamSpec) -> str:
     lo, hi = s.range
     lo_t = '-inf' if lo is None else fmt(lo)

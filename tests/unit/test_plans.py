@@ -178,7 +178,7 @@ def test_every_problem_of_a_plan_at_once_and_duplicate_names(params):
     assert lines == [
         "experiment 2 (stairs): name: 'stairs' is the name of experiment 1 too; each "
         'experiment needs its own (it names the bag)',
-        'experiment 2 (stairs): duration = 0.0: expected a finite number > 0 (s)',
+        'experiment 2 (stairs): duration = 0: expected a finite number > 0 (s)',
         'experiment 3: name: missing (the bag name: letters, digits, _ . -)',
         'experiment 3: current: missing (a staircase: {shape: staircase, unit: percent, '
         'levels: [...], dwell: 1.0}, or a sine: {shape: sine, unit: A, offset, amplitude, '

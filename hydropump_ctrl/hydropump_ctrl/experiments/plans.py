@@ -49,6 +49,7 @@ from hydropump_sim.errors import HydropumpError
 from hydropump_sim.params import default_params_path, input_spec, Params
 from hydropump_sim.scaling import current_for_displacement
 from hydropump_sim.schema import (
+    check_number,
     check_value,
     closest_name,
     fmt,
@@ -303,27 +304,6 @@ def _unknown(key: Any, accepted: Sequence[str], what: str) -> str:
     return f'{key}: unknown {what}{hint}; accepted: {", ".join(accepted)}'
 
 
-def _number(value: Any, where: str, unit: str, errors: list[str], *, positive: bool = False
-            ) -> float | None:
-    """A finite number (and above zero, with ``positive``), else a line in ``errors``."""
-    bad = isinstance(value, bool) or not isinstance(value, (int, float))
-    if not bad:
-        value = float(value)
-        bad = not math.isfinite(value) or (value <= 0.0 if positive else value < 0.0)
-    if bad:
-        hint = ''
-        if isinstance(value, str):
-            try:
-                float(value)
-                hint = ' (YAML read it as text: write a dot and a signed exponent, e.g. 1.5e+7)'
-            except ValueError:
-                pass
-        errors.append(f'{where} = {value!r}: expected a finite number {">" if positive else ">="}'
-                      f' 0 ({unit}){hint}')
-        return None
-    return value
-
-
 def _experiment(item: Any, where: str, errors: list[str]) -> PlanExperiment | None:
     """The fields of one experiment, checked alone (types, presence, signs)."""
     if not isinstance(item, Mapping):
@@ -345,7 +325,8 @@ def _experiment(item: Any, where: str, errors: list[str]) -> PlanExperiment | No
     if 'duration' not in item:
         errors.append(f'{where}: duration: missing (simulated time, s)')
     else:
-        duration = _number(item['duration'], f'{where}: duration', 's', errors, positive=True)
+        duration = check_number(item['duration'], f'{where}: duration', errors, unit='s',
+                                sign='> 0')
     current = _current(item.get('current'), f'{where}: current', errors)
     steps = {}
     for key in STEP_INPUTS:
@@ -403,11 +384,12 @@ def _current(data: Any, where: str, errors: list[str]) -> Current | None:
         if not isinstance(levels, list) or not levels:
             errors.append(f'{where}.levels: expected a list of levels ({u}), e.g. [30, 40, 50]')
             return None
-        values = [_number(v, f'{where}.levels[{k}]', u, errors) for k, v in enumerate(levels)]
+        values = [check_number(v, f'{where}.levels[{k}]', errors, unit=u, sign='>= 0')
+                  for k, v in enumerate(levels)]
         if 'dwell' not in data:
             errors.append(f'{where}.dwell: missing (s per level)')
             return None
-        dwell = _number(data['dwell'], f'{where}.dwell', 's', errors, positive=True)
+        dwell = check_number(data['dwell'], f'{where}.dwell', errors, unit='s', sign='> 0')
         if not ok or dwell is None or any(v is None for v in values):
             return None
         return Current('staircase', unit, tuple(values), dwell)
@@ -417,8 +399,8 @@ def _current(data: Any, where: str, errors: list[str]) -> Current | None:
             errors.append(f'{where}.{key}: missing ({unit_of})')
             ok = False
             continue
-        vals[key] = _number(data[key], f'{where}.{key}', unit_of, errors,
-                            positive=key == 'frequency')
+        vals[key] = check_number(data[key], f'{where}.{key}', errors, unit=unit_of,
+                                 sign='> 0' if key == 'frequency' else '>= 0')
         ok = ok and vals[key] is not None
     return Current('sine', unit, **vals) if ok else None
 
@@ -436,14 +418,11 @@ def _steps(data: Any, where: str, errors: list[str]) -> tuple | None:
         if not (isinstance(pair, (list, tuple)) and len(pair) == 2):
             errors.append(f'{form}); item {k} is {pair!r}')
             return None
-        t = _number(pair[0], f'{where}[{k}] time', 's', errors)
-        v = pair[1]
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            errors.append(f'{where}[{k}] value = {v!r}: expected a number')
+        t = check_number(pair[0], f'{where}[{k}] time', errors, unit='s', sign='>= 0')
+        v = check_number(pair[1], f'{where}[{k}] value', errors)
+        if t is None or v is None:
             return None
-        if t is None:
-            return None
-        out.append((t, float(v)))
+        out.append((t, v))
     if any(b[0] <= a[0] for a, b in zip(out, out[1:])):
         errors.append(f'{where}: times must increase ({", ".join(fmt(t) for t, _ in out)} s)')
         return None

@@ -38,6 +38,7 @@ from hydropump_sim.errors import HydropumpError
 from hydropump_sim.model import OUTPUTS
 from hydropump_sim.params import load_params, Params
 from hydropump_sim.schema import (
+    check_number,
     check_value,
     fmt,
     ParamError,
@@ -153,16 +154,6 @@ def _output_units():
     return OUTPUT_UNITS
 
 
-def _num(v: Any, where: str, errors: list[str], *, positive: bool = False) -> float | None:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        errors.append(f'{where} = {v!r}: expected a finite number')
-        return None
-    if positive and v <= 0:
-        errors.append(f'{where} = {v!r}: must be positive')
-        return None
-    return float(v)
-
-
 #: The most runs a sweep may hold: at 30 ms a run, eight hours on one core, and 1e6 rows of
 #: samples and results. Checked on the count before any sample is drawn (a grid of 1000^3,
 #: a Sobol base of 2^30 allocated until the machine stopped the process).
@@ -230,8 +221,8 @@ def _current(block: Any, duration: float, plant: Params, errors: list[str]):
         if bad:
             errors.append(f'{where}.step: unknown key(s) {", ".join(sorted(map(str, bad)))} '
                           '(use from, to, at)')
-        levels = [_num(body.get(k), f'{where}.step.{k}', errors) for k in ('from', 'to')]
-        at = _num(body.get('at'), f'{where}.step.at', errors, positive=True)
+        levels = [check_number(body.get(k), f'{where}.step.{k}', errors) for k in ('from', 'to')]
+        at = check_number(body.get('at'), f'{where}.step.at', errors, sign='> 0')
         if at is not None and at >= duration:
             errors.append(f'{where}.step.at = {fmt(at)} s: not before the end '
                           f'({fmt(duration)} s)')
@@ -245,8 +236,9 @@ def _current(block: Any, duration: float, plant: Params, errors: list[str]):
         if not isinstance(raw, list) or len(raw) < 2:
             errors.append(f'{where}.staircase.levels: expected a list of 2 or more fractions')
             return None, ()
-        levels = [_num(v, f'{where}.staircase.levels[{i}]', errors) for i, v in enumerate(raw)]
-        dwell = _num(body.get('dwell'), f'{where}.staircase.dwell', errors, positive=True)
+        levels = [check_number(v, f'{where}.staircase.levels[{i}]', errors)
+                  for i, v in enumerate(raw)]
+        dwell = check_number(body.get('dwell'), f'{where}.staircase.dwell', errors, sign='> 0')
         times = [k * dwell for k in range(len(levels))] if dwell else [None]
         if dwell and times[-1] >= duration:
             errors.append(f'{where}.staircase: the last level starts at {fmt(times[-1])} s, '
@@ -286,14 +278,14 @@ def _experiment(doc: Any, base: Path, plant: Params | None, errors: list[str]):
             if cur is not None and cur.kind == 'steps':
                 step_times = tuple(pt[0] for pt in cur.points[1:])
     if 'duration' in doc:
-        duration = _num(doc['duration'], 'experiment.duration', errors, positive=True)
+        duration = check_number(doc['duration'], 'experiment.duration', errors, sign='> 0')
     elif duration is None:
         errors.append('experiment.duration: missing (s)')
     model = doc.get('model', model)
     if model not in ('fine', 'simplified', 'simplified_Kc'):
         errors.append(f'experiment.model = {model!r}: use fine, simplified or simplified_Kc')
     if 'dt_out' in doc:
-        dt_out = _num(doc['dt_out'], 'experiment.dt_out', errors, positive=True) or 1.0e-3
+        dt_out = check_number(doc['dt_out'], 'experiment.dt_out', errors, sign='> 0') or 1.0e-3
     nominal = plant or scen_plant
     if 'current' in doc and duration and nominal is not None:
         fn, step_times = _current(doc['current'], duration, nominal, errors)
@@ -343,8 +335,8 @@ def _grid(block: Mapping, plant: Params, specs: dict, errors: list[str]):
         if s is None:
             continue
         if isinstance(vals, Mapping):
-            lo = _num(vals.get('from'), f'{where}.from', errors)
-            hi = _num(vals.get('to'), f'{where}.to', errors)
+            lo = check_number(vals.get('from'), f'{where}.from', errors)
+            hi = check_number(vals.get('to'), f'{where}.to', errors)
             n = _count(vals.get('n'), f'{where}.n', errors)
             if None in (lo, hi, n):
                 continue
@@ -352,7 +344,7 @@ def _grid(block: Mapping, plant: Params, specs: dict, errors: list[str]):
         elif not isinstance(vals, list) or not vals:
             errors.append(f'{where}: zero samples; expected a list of values or {{from, to, n}}')
             continue
-        vs = [_num(v, where, errors) for v in vals]
+        vs = [check_number(v, where, errors) for v in vals]
         if any(v is None for v in vs):
             continue
         vs = [v * nominal[name] if rel else v for v in vs]
@@ -383,7 +375,7 @@ def _bounds(block: Mapping, key: str, plant: Params, specs: dict, errors: list[s
         if not isinstance(pair, list) or len(pair) != 2:
             errors.append(f'{where} = {pair!r}: expected [low, high]')
             continue
-        a, b = (_num(v, where, errors) for v in pair)
+        a, b = (check_number(v, where, errors) for v in pair)
         if a is None or b is None:
             continue
         if rel:
@@ -476,7 +468,7 @@ def _distributions(block: Mapping, plant, specs, errors):
         if bad:
             errors.append(f'{where}: unknown key(s) {", ".join(sorted(map(str, bad)))}')
         kind = 'normal' if 'normal' in d else 'uniform'
-        w = _num(d[kind], f'{where}.{kind}', errors, positive=True)
+        w = check_number(d[kind], f'{where}.{kind}', errors, sign='> 0')
         rel = bool(d.get('relative', False))
         if w is None:
             continue
