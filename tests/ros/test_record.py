@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 import yaml
 
-from hydropump_ctrl.experiments.plans import held_inputs, load_plan
 from hydropump_ctrl.ident import read_recordings
+from hydropump_ctrl.plans import held_inputs, load_plan
 from hydropump_sim.params import default_params_path, load_params
 
 from .rosutil import spin_until

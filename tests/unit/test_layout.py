@@ -220,6 +220,21 @@ def test_bags_have_one_home_that_the_recorder_and_identification_share():
     assert issubclass(ident.PlausibilityError, bag.BagReadError)
 
 
+def test_nothing_below_the_demo_application_imports_it():
+    """experiments/ is the demo application and its harnesses: identification, control,
+    bags, the recorder and the recording plans (a file format identification reads) stand
+    below it and take nothing from it."""
+    graph = import_graph(module_files(PACKAGES['hydropump_ctrl'], 'hydropump_ctrl'))
+    below = ('ident', 'control', 'bag', 'recorder', 'plans', 'experiment')
+
+    def under(name, part):
+        return name == f'hydropump_ctrl.{part}' or name.startswith(f'hydropump_ctrl.{part}.')
+    up = {(m, t) for m, e in graph.items() if any(under(m, b) for b in below)
+          for t in e if under(t, 'experiments')}
+    assert not up, up
+    assert 'hydropump_ctrl.plans' in graph['hydropump_ctrl.ident.design']
+
+
 def test_each_command_module_takes_only_the_shared_helpers_from_the_cli():
     graph = import_graph(module_files(PACKAGES['hydropump_ctrl'], 'hydropump_ctrl'))
     cli = 'hydropump_ctrl.cli'

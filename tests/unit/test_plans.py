@@ -12,7 +12,8 @@ from hydropump_ctrl import cli
 from hydropump_ctrl.cli import record as record_cli
 from hydropump_ctrl.control.schema import load_config
 from hydropump_ctrl.experiments.campaign import closed_loop_experiments, identification_experiments
-from hydropump_ctrl.experiments.plans import (
+from hydropump_ctrl.ident.design import candidate_inputs
+from hydropump_ctrl.plans import (
     example_plan_path,
     EXCITATION_BASE,
     held_inputs,
@@ -22,7 +23,6 @@ from hydropump_ctrl.experiments.plans import (
     PlanError,
     standard_plan,
 )
-from hydropump_ctrl.ident.design import candidate_inputs
 
 from ..conftest import ROOT
 

@@ -1,11 +1,11 @@
 """``hydropump record``: a recording plan through the real nodes, one bag per experiment.
 
-The plan (:mod:`hydropump_ctrl.experiments.plans`), the output folder and the options are
+The plan (:mod:`hydropump_ctrl.plans`), the output folder and the options are
 checked here, before any node starts; running the plan needs ROS, which this package never
 imports: the runner comes from the ``hydropump.runners`` entry-point group, which the ROS
 package ``hydropump_ros`` fills (``record = hydropump_ros.record:run``). Without it, or
 without rclpy, the command says so in one line (``--check`` needs neither). SIGTERM stops the
-run (the runner raises :class:`~hydropump_ctrl.experiments.experiment.Stopped` once the nodes
+run (the runner raises :class:`~hydropump_ctrl.experiment.Stopped` once the nodes
 are stopped and the open bag is closed): one line, exit code 143.
 """
 
@@ -127,8 +127,8 @@ def _table(rows) -> str:
 
 
 def run(args) -> int:
-    from ..experiments.experiment import Stopped
-    from ..experiments.plans import load_plan
+    from ..experiment import Stopped
+    from ..plans import load_plan
     _check_options(args)
     params = _plant(args)
     plan = load_plan(args.plan, params)

@@ -37,9 +37,9 @@ from hydropump_sim.scaling import current_for_displacement
 from hydropump_sim.sensors import SensorProfile
 
 from .. import provenance
+from ..experiment import EXCITATION_BASE, Experiment, operating_point  # noqa: F401
 from ..ident import Recording
 from .closed_loop import disturbance_figures, trim_current
-from .experiment import EXCITATION_BASE, Experiment  # noqa: F401 (users import them here)
 
 # What the closed-loop experiments record: every topic of the suite (measure.suite_topics);
 # the identification leaves out the load's flow and the controller's state, which no fit of
@@ -84,13 +84,6 @@ def stage(name: str) -> Iterator[None]:
 
 
 # ---- experiments ----------------------------------------------------------------------------
-
-def operating_point(params: Params, current: float, seed: int = 0, **inputs) -> dict:
-    """The simulator's live parameters of an experiment: the whole operating point, since
-    the graph keeps what the previous experiment left."""
-    return {'initial_current': float(current), 'line.P_u': params.line.P_u,
-            'line.xi_u': params.line.xi_u, 'sensors.seed': seed, **inputs}
-
 
 #: The nine identification sets: (step size, centre) of a growing-flow staircase in % of
 #: displacement, at the nominal operating point (the paper: nine data sets of current steps

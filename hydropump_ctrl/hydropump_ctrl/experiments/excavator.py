@@ -36,10 +36,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..experiment import Experiment
 from .duty import filled, mean20, schedule
 from .duty import held_inputs as duty_held
 from .duty import recorder_topics as duty_recorder_topics
-from .experiment import Experiment
 
 #: The actuators (section names in excavator.yaml); the swing's is a motor.
 LOADS = ('boom', 'arm', 'bucket', 'swing')

@@ -39,11 +39,11 @@ import numpy as np
 
 from hydropump_sim.sensors import SensorProfile
 
+from ..experiment import EXCITATION_BASE, Experiment
 from .duty import filled, mean20
 from .duty import held_inputs as duty_held
 from .duty import recorder_topics as duty_recorder_topics
 from .duty import schedule as duty_schedule
-from .experiment import EXCITATION_BASE, Experiment
 
 #: The loads of Fig. 1 (section names in fig1.yaml).
 LOADS = ('steering', 'boom', 'motor')

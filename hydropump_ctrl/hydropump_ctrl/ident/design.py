@@ -32,11 +32,11 @@ DELAY_PLAN = 0.05
 
 def candidate_inputs(params, dt: float = 1e-3, dwell: float = 1.0) -> dict[str, dict]:
     """The standard experiments, the calibration campaign of ``hydropump record standard``
-    (:func:`hydropump_ctrl.experiments.plans.standard_plan`, the held-out one aside): current
+    (:func:`hydropump_ctrl.plans.standard_plan`, the held-out one aside): current
     staircases up and down in the regulating range at the params file's load pressure, the
     same at a load pressure 40 bar lower, and load-pressure steps at a held current (inputs
     held per sample ``dt``: absolute current A, gauge load pressure Pa)."""
-    from ..experiments.plans import held_inputs, standard_plan
+    from ..plans import held_inputs, standard_plan
     out = {}
     for e in standard_plan(params, dwell=dwell).experiments:
         if not e.held_out:

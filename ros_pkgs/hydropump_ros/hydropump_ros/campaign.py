@@ -63,7 +63,7 @@ def _worker_init() -> None:
     """In each worker process: SIGTERM (from the run as it stops) unwinds what the worker
     runs, ending its graph's nodes, and ends the worker with exit code 143; Ctrl-C is left to
     the run, which stops the workers then."""
-    from hydropump_ctrl.experiments.experiment import Stopped
+    from hydropump_ctrl.experiment import Stopped
     stop_on_sigterm(lambda: SystemExit(Stopped.EXIT_CODE))
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
@@ -187,7 +187,7 @@ def main(argv=None) -> int:
     except UsageError as exc:
         print(f'error: {exc}', file=sys.stderr)
         return 2
-    from hydropump_ctrl.experiments.experiment import Stopped
+    from hydropump_ctrl.experiment import Stopped
     stop_on_sigterm()
     try:
         return run(args, run_dir)

@@ -77,11 +77,11 @@ def starting():
 
 def stop_on_sigterm(exc: Callable[[], BaseException] | None = None) -> None:
     """From now on SIGTERM stops the run in this process: its handler raises ``exc()``
-    (default :class:`~hydropump_ctrl.experiments.experiment.Stopped`) in the main thread,
+    (default :class:`~hydropump_ctrl.experiment.Stopped`) in the main thread,
     through :func:`stop` (held while a node process starts), once: a second SIGTERM must not
     cut the stop short. The run's :class:`Orchestrator` is then made with ``signals=False``."""
     if exc is None:
-        from hydropump_ctrl.experiments.experiment import Stopped  # now, not in the handler
+        from hydropump_ctrl.experiment import Stopped  # now, not in the handler
         exc = Stopped
 
     def on_sigterm(signum, frame):

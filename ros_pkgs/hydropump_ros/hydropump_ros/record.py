@@ -8,7 +8,7 @@ with the plan's params file and sensor profile, started paused), or the graph al
 in this domain and namespace (``--attach``).
 
 SIGTERM stops the run as it stops ``hydropump-demo`` (:func:`.orchestration.stop_on_sigterm`):
-:class:`~hydropump_ctrl.experiments.experiment.Stopped` unwinds it, a graph of its own ends
+:class:`~hydropump_ctrl.experiment.Stopped` unwinds it, a graph of its own ends
 its nodes by PID (the recorder closes the open bag), an attached graph has its open bag
 closed; the command says so in one line and exits with code 143.
 """
@@ -20,7 +20,7 @@ from pathlib import Path
 import time
 
 from hydropump_ctrl.experiments.campaign import LOOP_TOPICS
-from hydropump_ctrl.experiments.plans import (
+from hydropump_ctrl.plans import (
     check_plan,
     LOG_FOLDER,
     node_experiment,

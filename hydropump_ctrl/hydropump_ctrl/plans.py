@@ -46,6 +46,7 @@ import zlib
 import numpy as np
 
 from hydropump_sim.errors import HydropumpError
+from hydropump_sim.measure import suite_topics
 from hydropump_sim.params import default_params_path, input_spec, Params
 from hydropump_sim.scaling import current_for_displacement
 from hydropump_sim.schema import (
@@ -57,8 +58,8 @@ from hydropump_sim.schema import (
     read_yaml,
 )
 
-from ..control.schema import specs as controller_specs
-from .campaign import EXCITATION_BASE, Experiment, LOOP_TOPICS, operating_point
+from .control.schema import specs as controller_specs
+from .experiment import EXCITATION_BASE, Experiment, operating_point
 
 #: The plan that needs no file: :func:`standard_plan`.
 STANDARD = 'standard'
@@ -623,4 +624,4 @@ def node_experiment(exp: PlanExperiment, params: Params, period: float = CONTROL
     sim = operating_point(params, start, exp.noise_seed, **inputs)
     return Experiment(exp.name, exp.label or exp.describe(), control_instant(exp.duration,
                                                                              period),
-                      sim, ctrl, list(LOOP_TOPICS), events, ctrl_first=dict(EXCITATION_BASE))
+                      sim, ctrl, suite_topics(), events, ctrl_first=dict(EXCITATION_BASE))

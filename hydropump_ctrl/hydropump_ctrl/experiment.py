@@ -1,6 +1,8 @@
 """One run through the node graph (:class:`Experiment`), as every orchestrated run describes
-it: the demo's campaign, its Fig. 1 duty cycle and ``hydropump record``'s plans; and the stop
-of such a run by SIGTERM (:class:`Stopped`)."""
+it: the demo's campaign, its Fig. 1 duty cycle and ``hydropump record``'s plans; the
+simulator's operating point of one (:func:`operating_point`); and the stop of such a run by
+SIGTERM (:class:`Stopped`). Below both the plans (a file format) and the demo application
+(:mod:`hydropump_ctrl.experiments`), which read it."""
 
 from __future__ import annotations
 
@@ -75,3 +77,10 @@ class Experiment:
 #: ``excitation.signal`` comes last.
 EXCITATION_BASE = {'excitation.amplitude': 0.0, 'excitation.offset': 0.0,
                    'excitation.relative': False, 'excitation.signal': 'sine'}
+
+
+def operating_point(params, current: float, seed: int = 0, **inputs) -> dict:
+    """The simulator's live parameters of an experiment: the whole operating point, since
+    the graph keeps what the previous experiment left."""
+    return {'initial_current': float(current), 'line.P_u': params.line.P_u,
+            'line.xi_u': params.line.xi_u, 'sensors.seed': seed, **inputs}
