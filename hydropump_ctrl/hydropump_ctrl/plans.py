@@ -49,6 +49,7 @@ from hydropump_sim.errors import HydropumpError
 from hydropump_sim.measure import suite_topics
 from hydropump_sim.params import default_params_path, input_spec, Params
 from hydropump_sim.scaling import current_for_displacement
+from hydropump_sim.scenario import time_value_pairs
 from hydropump_sim.schema import (
     check_number,
     check_value,
@@ -410,24 +411,7 @@ def _steps(data: Any, where: str, errors: list[str]) -> tuple | None:
     """``[[t, value], ...]`` with increasing times; values are checked with the plant."""
     if data is None:
         return ()
-    form = f'{where}: expected [[t, value], ...] (t in s from the start'
-    if not isinstance(data, list) or not data:
-        errors.append(f'{form}; a list of pairs)')
-        return None
-    out = []
-    for k, pair in enumerate(data):
-        if not (isinstance(pair, (list, tuple)) and len(pair) == 2):
-            errors.append(f'{form}); item {k} is {pair!r}')
-            return None
-        t = check_number(pair[0], f'{where}[{k}] time', errors, unit='s', sign='>= 0')
-        v = check_number(pair[1], f'{where}[{k}] value', errors)
-        if t is None or v is None:
-            return None
-        out.append((t, v))
-    if any(b[0] <= a[0] for a, b in zip(out, out[1:])):
-        errors.append(f'{where}: times must increase ({", ".join(fmt(t) for t, _ in out)} s)')
-        return None
-    return tuple(out)
+    return time_value_pairs(data, where, errors, time_sign='>= 0')
 
 
 def experiment_errors(exp: PlanExperiment, params: Params, period: float = CONTROL_PERIOD

@@ -31,7 +31,7 @@ import numpy as np
 from .errors import HydropumpError
 from .inputs import held
 from .params import check_input, default_params_path, INPUTS, load_params, Params
-from .schema import check_number, ParamError, read_yaml, unknown_key_line
+from .schema import check_number, fmt, ParamError, read_yaml, unknown_key_line
 
 SIGNALS = {
     'current': ('A', 'absolute solenoid current'),
@@ -84,6 +84,33 @@ class Scenario:
     output: str | None = None
 
 
+def time_value_pairs(raw: Any, where: str, errors: list[str], *, time_sign: str = '',
+                     unit: str = '') -> tuple | None:
+    """``[[t, value], ...]`` with increasing times (``time_sign``: ``'>= 0'`` where time
+    counts from a start; ``unit``: the value's unit, named in the messages), else ``None``
+    and one line in ``errors``: the one reader of held and ramped points, for scenarios and
+    recording plans alike."""
+    of = f', the value in {unit}' if unit else ''
+    form = f'{where}: expected [[t, value], ...] (t in s{of}'
+    if not isinstance(raw, list) or not raw:
+        errors.append(f'{form}; a list of pairs)')
+        return None
+    out = []
+    for k, pair in enumerate(raw):
+        if not (isinstance(pair, (list, tuple)) and len(pair) == 2):
+            errors.append(f'{form}); item {k} is {pair!r}')
+            return None
+        t = check_number(pair[0], f'{where}[{k}] time', errors, unit='s', sign=time_sign)
+        v = check_number(pair[1], f'{where}[{k}] value', errors, unit=unit)
+        if t is None or v is None:
+            return None
+        out.append((t, v))
+    if any(b[0] <= a[0] for a, b in zip(out, out[1:])):
+        errors.append(f'{where}: times must increase ({", ".join(fmt(t) for t, _ in out)} s)')
+        return None
+    return tuple(out)
+
+
 def parse_signal(spec: Any, name: str, errors: list[str]) -> Signal | None:
     """Build a :class:`Signal` from its YAML form, appending problems to ``errors``."""
     where = f'inputs.{name}'
@@ -101,24 +128,9 @@ def parse_signal(spec: Any, name: str, errors: list[str]) -> Signal | None:
     for key in ('steps', 'ramp'):
         if key in spec:
             kind = key
-            raw = spec[key]
-            if not isinstance(raw, list) or not raw:
-                errors.append(f'{where}.{key}: expected a list of [t, value] pairs')
+            points = time_value_pairs(spec[key], f'{where}.{key}', errors)
+            if points is None:
                 return None
-            pts = []
-            for i, pair in enumerate(raw):
-                if not (isinstance(pair, (list, tuple)) and len(pair) == 2):
-                    errors.append(f'{where}.{key}[{i}] = {pair!r}: expected [t, value]')
-                    return None
-                t = check_number(pair[0], f'{where}.{key}[{i}] time', errors)
-                v = check_number(pair[1], f'{where}.{key}[{i}] value', errors)
-                if t is None or v is None:
-                    return None
-                pts.append((t, v))
-            if any(b[0] <= a[0] for a, b in zip(pts, pts[1:])):
-                errors.append(f'{where}.{key}: times must increase')
-                return None
-            points = tuple(pts)
     offset = 0.0
     if 'offset' in spec:
         if kind != 'constant':
