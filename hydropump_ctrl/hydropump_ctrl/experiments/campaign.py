@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
+from dataclasses import dataclass, field
 import json
 from pathlib import Path
 import time
@@ -308,15 +309,11 @@ def stage_times(wall: float, simulated: float = 0.0, overhead: float = 0.0) -> d
 
 # ---- after the runs -------------------------------------------------------------------------
 
-def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: SensorProfile,
-                     idents: Sequence[Experiment], loops: Sequence[Experiment], walls: dict,
-                     started: float, starts: dict | None = None,
-                     echo: Callable[[str], None] = print, pool=None,
-                     calibrate: bool = False, fig1: Sequence[Experiment] = (),
-                     excavator: Sequence[Experiment] = (), prov: dict | None = None) -> Path:
-    """Stages 2, 4 and 5 of the demo on its bags: fit, model analysis, report.
+@dataclass
+class CampaignRun:
+    """What the demo ran, as its analysis reads it.
 
-    Parameters
+    Attributes
     ----------
     run_dir : Path
         The run folder: ``identification/``, ``figures/``, ``report.html`` and
@@ -329,32 +326,42 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
         The identification and the closed-loop experiments that were run.
     walls : dict
         Times of the stages so far, ``{stage: {'simulated_s', 'wall_s', 'overhead_s'}}``
-        (:func:`stage_times`); this adds the others and ``total``.
+        (:func:`stage_times`); the analysis adds the others and ``total``.
     started : float
         ``time.perf_counter()`` at the start of the run, for the total.
-    starts : dict, optional
+    starts : dict
         Simulation time [s] each experiment started at, by name (default 0).
-    echo : callable
-        Where progress lines and tables go (one string a call).
-    calibrate : bool
-        Also calibrate the bench plant from the identification bags
-        (:func:`bench_calibration`, about 25 s).
-    fig1 : sequence of Experiment
-        The Fig. 1 duty cycles that were run (:mod:`.fig1`), judged and drawn in a section
-        of their own.
-    excavator : sequence of Experiment
-        The excavator's duty cycle, if it was run (:mod:`.excavator`), likewise.
+    fig1, excavator : sequence of Experiment
+        The Fig. 1 duty cycles (:mod:`.fig1`) and the excavator's cycle (:mod:`.excavator`)
+        that were run, each judged and drawn in a section of its own.
     prov : dict, optional
         Where the run came from (:func:`..provenance.collect`): in ``summary.json`` and at
         the end of the page.
-    pool : concurrent.futures.Executor, optional
-        Where the work that waits for nothing here runs beside the fit (the operating map
-        and dither figures, the plant's twin); without one, all of it runs in turn.
+    """
 
-    Returns
-    -------
-    Path
-        The report page.
+    run_dir: Path
+    bag_dir: Path
+    params: Params
+    profile: SensorProfile
+    idents: Sequence[Experiment]
+    loops: Sequence[Experiment]
+    walls: dict
+    started: float
+    starts: dict = field(default_factory=dict)
+    fig1: Sequence[Experiment] = ()
+    excavator: Sequence[Experiment] = ()
+    prov: dict | None = None
+
+
+def analyse_campaign(run: CampaignRun, echo: Callable[[str], None] = print, pool=None,
+                     calibrate: bool = False) -> Path:
+    """Stages 2, 4 and 5 of the demo on its bags: fit, model analysis, report.
+
+    ``echo`` takes the progress lines and tables (one string a call); ``pool`` (a
+    ``concurrent.futures.Executor``) runs the work that waits for nothing here beside the
+    fit (the operating map and dither figures, the plant's twin), else all of it runs in
+    turn; ``calibrate`` also calibrates the bench plant from the identification bags
+    (:func:`bench_calibration`, about 25 s). Returns the report page.
 
     Raises
     ------
@@ -362,13 +369,8 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
         A stage that failed (a full disk: a file it could not write), named in one line;
         the files of the stages before it are left whole, none is left half-written.
     """
-    from hydropump_sim import analysis
-
-    from ..ident import fit_bags, fit_recordings, format_table, read_recording, write_report
-    from . import plots, report
     from .maps import draw_figures
-    t0 = time.perf_counter()
-    figs = run_dir / 'figures'
+    figs = run.run_dir / 'figures'
     with stage('figures'):
         figs.mkdir(parents=True, exist_ok=True)
 
@@ -377,12 +379,25 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
         if pool is None:
             return lambda: fn(*args)
         return pool.submit(fn, *args).result
-    maps = later(draw_figures, params, figs)
+    maps = later(draw_figures, run.params, figs)
+    fitted = _fit_stage(run, echo, later, calibrate)
+    duty, dig = _duty_stages(run, echo)
+    return _report_stages(run, echo, fitted, duty, dig, maps)
+
+
+def _fit_stage(run: CampaignRun, echo, later, calibrate: bool) -> dict:
+    """Stage 3: eq. 19 on the identification bags (both methods), the plant's own answer,
+    the calibration if asked, and the closed-loop figures of the loop bags."""
+    from ..ident import fit_bags, fit_recordings, format_table, read_recording, write_report
+    from . import report
+    params, walls = run.params, run.walls
+    t0 = time.perf_counter()
     echo('[3/5 fitting] eq. 19 on the identification bags ...')
     with stage('fitting'):
-        ident = fit_bags([exp.bag(bag_dir) for exp in idents], params=params, progress=None)
-        truth = later(plant_truth, params, profile, ident.recordings)
-        fit_paths = write_report(ident, run_dir / 'identification', params=params)
+        ident = fit_bags([exp.bag(run.bag_dir) for exp in run.idents], params=params,
+                         progress=None)
+        truth = later(plant_truth, params, run.profile, ident.recordings)
+        fit_paths = write_report(ident, run.run_dir / 'identification', params=params)
         truth = truth()
         paper_fit = fit_recordings(ident.recordings, params=params, method='paper',
                                    joint=False)
@@ -392,42 +407,65 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
         t0 = time.perf_counter()
         echo(f'[3/5 fitting] calibration of {", ".join(CALIBRATED)} from the same bags ...')
         with stage('calibration'):
-            calibration = bench_calibration(params, profile, ident.recordings,
-                                            run_dir / 'calibration')
+            calibration = bench_calibration(params, run.profile, ident.recordings,
+                                            run.run_dir / 'calibration')
         echo(report.text_table(report.CALIBRATION_HEAD, calibration[0]))
         walls['calibration'] = stage_times(time.perf_counter() - t0)
     echo(format_table(ident))
     rows = report.identification_rows(ident, truth, paper_fit)
     echo(report.text_table(['', 'G0 [%/range]', 'tau [ms]', 't_d [ms]'], rows))
-    starts = starts or {}
     with stage('closed-loop analysis'):
-        loop_results = {exp.name: loop_figures(params, exp, read_recording(exp.bag(bag_dir)),
-                                               t0=starts.get(exp.name, 0.0)) for exp in loops}
-    echo(report.text_table(*report.loop_table(loop_results)))
-    duty, kinds = None, []
-    if fig1:
+        loops = {exp.name: loop_figures(params, exp, read_recording(exp.bag(run.bag_dir)),
+                                        t0=run.starts.get(exp.name, 0.0)) for exp in run.loops}
+    echo(report.text_table(*report.loop_table(loops)))
+    return {'ident': ident, 'truth': truth, 'rows': rows, 'fit_paths': fit_paths,
+            'calibration': calibration, 'loops': loops}
+
+
+def _duty_stages(run: CampaignRun, echo) -> tuple:
+    """The Fig. 1 and excavator cycles judged from their bags: ``(duty, dig)``, each
+    ``None`` when it was not run, else its figures with what draws them."""
+    from . import report
+    figs = run.run_dir / 'figures'
+    duty = dig = None
+    if run.fig1:
         from hydropump_sim.circuit import default_circuit_path, load_circuit
 
         from . import fig1 as cycle
         with stage('Fig. 1 analysis'):
             overlap = cycle.overlaps(load_circuit(default_circuit_path().with_name('fig1.yaml'),
                                                   compile=False))
-            runs, duty_results = cycle.analyse({e.name: e.bag(bag_dir) for e in fig1}, starts,
-                                               profile, params.fluid.p_atm,
-                                               params.relief.p_crack, overlap)
-        echo(report.text_table(cycle.TABLE_HEAD, cycle.table_rows(duty_results)))
-        kinds = sorted({e.name.rsplit('_', 1)[1] for e in fig1}, reverse=True)
-        duty = (duty_results, [figs / f'fig1_{kind}.png' for kind in kinds])
-    dig = None
-    if excavator:
+            runs, results = cycle.analyse({e.name: e.bag(run.bag_dir) for e in run.fig1},
+                                          run.starts, run.profile, run.params.fluid.p_atm,
+                                          run.params.relief.p_crack, overlap)
+        echo(report.text_table(cycle.TABLE_HEAD, cycle.table_rows(results)))
+        kinds = sorted({e.name.rsplit('_', 1)[1] for e in run.fig1}, reverse=True)
+        paths = [figs / f'fig1_{kind}.png' for kind in kinds]
+
+        def draw_fig1():
+            for kind, path in zip(kinds, paths):
+                cycle.plot(runs, kind, path, overlap)
+        duty = (results, paths, draw_fig1)
+    if run.excavator:
         from . import excavator as machine
-        exp = excavator[0]
+        exp = run.excavator[0]
         with stage('excavator analysis'):
-            circuit, dig_run, dig_figures = machine.analyse(exp.bag(bag_dir),
-                                                            starts.get(exp.name, 0.0), profile)
+            circuit, dig_run, dig_figures = machine.analyse(
+                exp.bag(run.bag_dir), run.starts.get(exp.name, 0.0), run.profile)
         echo(report.text_table(machine.SPEED_HEAD, machine.speed_rows(dig_figures)))
         echo(report.text_table(machine.ENERGY_HEAD, [machine.energy_row(dig_figures)]))
-        dig = (dig_figures, figs / 'excavator.png')
+        path = figs / 'excavator.png'
+        dig = (dig_figures, path, lambda: machine.plot(dig_run, circuit, path))
+    return duty, dig
+
+
+def _report_stages(run: CampaignRun, echo, fitted: dict, duty, dig, maps) -> Path:
+    """Stages 4 and 5: the modes and the singular-perturbation check, then every figure,
+    ``report.html`` and ``summary.json``."""
+    from hydropump_sim import analysis
+
+    from . import plots, report
+    params, walls, figs = run.params, run.walls, run.run_dir / 'figures'
     t0 = time.perf_counter()
     echo('[4/5 model analysis] modes and the singular-perturbation check ...')
     with stage('model analysis'):
@@ -439,30 +477,30 @@ def analyse_campaign(run_dir: Path, bag_dir: Path, params: Params, profile: Sens
     echo('[5/5 report] figures and report.html ...')
     with stage('figures'):
         analysis.plot_steps(steps, params, figs / 'steps.png')
-        plots.plot_bode_identified(params, ident, figs / 'bode.png')
+        plots.plot_bode_identified(params, fitted['ident'], figs / 'bode.png')
         hyst = plots.plot_hysteresis(params, figs / 'hysteresis.png')
-        plots.plot_closed_loop(loop_results, figs / 'emc_vs_pi.png')
-        for kind in kinds:
-            cycle.plot(runs, kind, figs / f'fig1_{kind}.png', overlap)
-        if dig is not None:
-            machine.plot(dig_run, circuit, dig[1])
+        plots.plot_closed_loop(fitted['loops'], figs / 'emc_vs_pi.png')
+        for cycle in (duty, dig):
+            if cycle is not None:
+                cycle[2]()
         maps()
     walls['report'] = stage_times(time.perf_counter() - t0)
     # A graph beside the campaign's adds its simulated time, not its idle time.
-    walls['total'] = stage_times(time.perf_counter() - started,
+    walls['total'] = stage_times(time.perf_counter() - run.started,
                                  sum(v['simulated_s'] for v in walls.values()),
                                  sum(v['overhead_s'] for k, v in walls.items()
                                      if not k.startswith((BESIDE, BESIDE_EXCAVATOR))))
     with stage('report'):
-        sections = report.report_sections(ident, truth, rows, loop_results, modal, text, hyst,
-                                          walls, fit_paths, figs, bag_dir, calibration, duty,
-                                          dig)
-        if prov:
-            sections.append(('Provenance', provenance.html(prov)))
-        page = report.write_html(run_dir, sections)
-        write_text(run_dir / 'summary.json', json.dumps({**report.summary(
-            ident, truth, loop_results, walls, duty[0] if duty else None,
-            dig[0] if dig else None), **({'provenance': prov} if prov else {})},
-            indent=2) + '\n', 'summary')
+        sections = report.report_sections(
+            fitted['ident'], fitted['truth'], fitted['rows'], fitted['loops'], modal, text,
+            hyst, walls, fitted['fit_paths'], figs, run.bag_dir, fitted['calibration'],
+            duty[:2] if duty else None, dig[:2] if dig else None)
+        if run.prov:
+            sections.append(('Provenance', provenance.html(run.prov)))
+        page = report.write_html(run.run_dir, sections)
+        write_text(run.run_dir / 'summary.json', json.dumps({**report.summary(
+            fitted['ident'], fitted['truth'], fitted['loops'], walls,
+            duty[0] if duty else None, dig[0] if dig else None),
+            **({'provenance': run.prov} if run.prov else {})}, indent=2) + '\n', 'summary')
     echo(report.text_table(report.STAGE_HEAD, report.stage_rows(walls)))
     return page

@@ -383,6 +383,7 @@ def run(args, run_dir: Path) -> int:
         analyse_campaign,
         BESIDE,
         BESIDE_EXCAVATOR,
+        CampaignRun,
         closed_loop_experiments,
         identification_experiments,
     )
@@ -416,11 +417,11 @@ def run(args, run_dir: Path) -> int:
         fig1 = _joined(duty, BESIDE, walls, starts)
         excavator = _joined(dig, BESIDE_EXCAVATOR, walls, starts)
         # 3. Fitting, 4. model analysis, 5. report: no graph needed.
-        page = analyse_campaign(run_dir, run_dir / 'bags', params, profile, idents, loops,
-                                walls, t_all, starts, echo=_progress, pool=pool,
-                                calibrate=args.calibrate, fig1=fig1, excavator=excavator,
-                                prov=collect([default_params_path(), profile_path,
-                                              *_demo_files(args)]))
+        run = CampaignRun(run_dir, run_dir / 'bags', params, profile, idents, loops, walls,
+                          t_all, starts or {}, fig1=fig1, excavator=excavator,
+                          prov=collect([default_params_path(), profile_path,
+                                        *_demo_files(args)]))
+        page = analyse_campaign(run, echo=_progress, pool=pool, calibrate=args.calibrate)
     print(f'\nreport: {page.resolve()}\nbags: {(run_dir / "bags").resolve()}')
     return 0
 
