@@ -15,6 +15,7 @@ from pathlib import Path
 
 from hydropump_sim.files import write_text
 
+from .. import pages
 from ..ident import PAPER
 
 # ---- tables ---------------------------------------------------------------------------------
@@ -92,7 +93,7 @@ def report_sections(ident, truth, rows, loops, modal, analysis_text, hyst, walls
     head, lrows = loop_table(loops)
     return [
         ('Identification (section V, eq. 19): the paper against this run',
-         _table(['', 'G0 [% per range]', 'tau [ms]', 't_d [ms]'], rows)
+         pages.table(['', 'G0 [% per range]', 'tau [ms]', 't_d [ms]'], rows)
          + "<p>The paper's protocol: nine growing-flow current staircases at the nominal "
            'operating point (120 bar, aperture 0.5), differing in levels (centred on 45, 50 '
            'and 55 % of displacement), step sizes (5, 10 and 15 %) and noise seeds, through '
@@ -112,7 +113,7 @@ def report_sections(ident, truth, rows, loops, modal, analysis_text, hyst, walls
             "<p>The fine model's parameters that growing-flow staircases determine, fitted to "
             'the nine bags (every recorded signal, one delay each) from a start 20 % off, '
             'against the plant the simulator ran.</p>'
-            + _table(CALIBRATION_HEAD, calibration[0]) + _img(calibration[1]))]
+            + pages.table(CALIBRATION_HEAD, calibration[0]) + _img(calibration[1]))]
           if calibration else []),
         ('Bode: fine vs simplified vs identified', _img(figs / 'bode.png')),
         *([('Beyond the paper: the operating map and the dither sensitivity',
@@ -124,10 +125,10 @@ def report_sections(ident, truth, rows, loops, modal, analysis_text, hyst, walls
             + _img(figs / 'operating_map.png') + _img(figs / 'dither_sensitivity.png'))]
           if (figs / 'operating_map.png').is_file() else []),
         ('Step responses up and down', _img(figs / 'steps.png')),
-        ('Current-flow hysteresis with friction', _table(
+        ('Current-flow hysteresis with friction', pages.table(
             ['model', 'settled q_l, from below minus from above, at 50 % [% FS]'],
             [[k, f'{v:.3f}'] for k, v in hyst.items()]) + _img(figs / 'hysteresis.png')),
-        ('EMC against PI (closed loop through the nodes)', _table(head, lrows)
+        ('EMC against PI (closed loop through the nodes)', pages.table(head, lrows)
          + _img(figs / 'emc_vs_pi.png')),
         *([('The circuit of Fig. 1: load sensing against the highest load, through the nodes',
             _fig1_text(duty))] if duty else []),
@@ -136,7 +137,7 @@ def report_sections(ident, truth, rows, loops, modal, analysis_text, hyst, walls
         ('Model analysis (section IV)', f'<pre>{html.escape(modal)}</pre>'
          f'<details><summary>full analysis</summary><pre>{html.escape(analysis_text)}'
          f'</pre></details>'),
-        ('Run', _table(STAGE_HEAD, stage_rows(walls))
+        ('Run', pages.table(STAGE_HEAD, stage_rows(walls))
          + f'<p>Bags (rosbag2, MCAP): <code>{html.escape(str(bag_dir.resolve()))}</code>; '
            '<code>ros2 bag info</code> and <code>ros2 bag play</code> read them.</p>'),
     ]
@@ -162,7 +163,7 @@ def _excavator_text(dig) -> str:
         'pump saturated and every section shares what it gives alike (flow sharing), or a '
         'load that accelerates (the swing, torque-limited by its cross-port relief) or '
         'stops on its end (the bucket at breakout).</p>'
-        + _table(m.SPEED_HEAD, m.speed_rows(f))
+        + pages.table(m.SPEED_HEAD, m.speed_rows(f))
         + f'<p>Margin: mean |P_l - P_LS - {m.MARGIN / 1e5:g} bar| '
           f'{f["margin_error"] / 1e5:.2f} bar, within 2 bar {100 * f["margin_held"]:.0f} % '
           f'of the time the pump can hold it ({100 * f["margin_samples"]:.0f} % of the '
@@ -175,7 +176,7 @@ def _excavator_text(dig) -> str:
           'loads (negative when they drive: a boom let down), what is stored (kinetic, '
           'oil springs, gas), and where the rest was lost; unaccounted: what the sum leaves '
           'over the energy supplied.</p>'
-        + _table(m.ENERGY_HEAD, [m.energy_row(f)]) + _img(png))
+        + pages.table(m.ENERGY_HEAD, [m.energy_row(f)]) + _img(png))
 
 
 def _fig1_text(duty) -> str:
@@ -203,7 +204,7 @@ def _fig1_text(duty) -> str:
         "loss: P_l Q_p - sum P_i Q_i over the cycle (the relief's included); to the loads: "
         "the loads' share of the pump's hydraulic energy. Flows are moved back by the flow "
         "sensors' configured delay to line up with the pressures.</p>"
-        + _table(fig1.TABLE_HEAD, fig1.table_rows(results))
+        + pages.table(fig1.TABLE_HEAD, fig1.table_rows(results))
         + ''.join(_img(p) for p in pngs))
 
 
@@ -288,14 +289,6 @@ def _img(path: Path) -> str:
             f'{where}><figcaption>{html.escape(caption(path))}</figcaption></figure>')
 
 
-def _table(head, rows) -> str:
-    """An HTML table, every cell escaped."""
-    h = ''.join(f'<th>{html.escape(str(x))}</th>' for x in head)
-    body = ''.join('<tr>' + ''.join(f'<td>{html.escape(str(x))}</td>' for x in r) + '</tr>'
-                   for r in rows)
-    return f'<table><tr>{h}</tr>{body}</table>'
-
-
 def write_html(run_dir: Path, sections: list[tuple[str, str]]) -> Path:
     """Write ``report.html`` in ``run_dir`` from ``(title, HTML body)`` sections (whole or not
     at all)."""
@@ -303,9 +296,7 @@ def write_html(run_dir: Path, sections: list[tuple[str, str]]) -> Path:
            'table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;'
            'padding:3px 8px;text-align:right}th{background:#eee}img{max-width:100%}'
            'pre{background:#f6f6f6;padding:.6em;overflow-x:auto;font-size:12px}')
-    parts = [f'<!doctype html><html><head><meta charset="utf-8"><title>hydropump report</title>'
-             f'<style>{css}</style></head><body><h1>hydropump: the paper end to end</h1>']
-    for title, body in sections:
-        parts.append(f'<h2>{html.escape(title)}</h2>{body}')
-    parts.append('</body></html>')
-    return write_text(run_dir / 'report.html', '\n'.join(parts), 'report')
+    parts = ['<h1>hydropump: the paper end to end</h1>',
+             *(pages.section(title, body) for title, body in sections)]
+    return write_text(run_dir / 'report.html', pages.page('hydropump report', css, parts),
+                      'report')

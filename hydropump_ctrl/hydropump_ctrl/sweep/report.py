@@ -25,7 +25,7 @@ import numpy as np
 
 from hydropump_sim import files
 
-from .. import provenance
+from .. import pages, provenance
 from .runs import STATUS_OK
 from .spec import Sweep
 
@@ -105,7 +105,8 @@ def _png(fig) -> str:
 # (a sweep of many inputs and outputs has many columns).
 PAGE_CSS = ('body{font-family:sans-serif;max-width:1300px;margin:auto;padding:0 1em}'
             'img{max-width:100%;height:auto}table{display:block;max-width:100%;'
-            'overflow-x:auto;border-collapse:collapse}td,th{padding:3px 6px}')
+            'overflow-x:auto;border-collapse:collapse}td,th{padding:3px 6px;'
+            'border:1px solid #bbb}')
 
 
 def write_report(sweep: Sweep, table: Path, out: Path) -> Path:
@@ -124,77 +125,88 @@ def write_report(sweep: Sweep, table: Path, out: Path) -> Path:
     ok = cols['status'] == STATUS_OK
     n_ok, n = int(ok.sum()), len(ok)
     parts = [f'<h1>Sweep {html.escape(sweep.source or "")}</h1>',
-             f'<p>{sweep.method}, {n} runs: {n_ok} ok, {n - n_ok} failed. Inputs: '
-             + ', '.join(f'<code>{html.escape(v)}</code>' for v in sweep.names) + '</p>']
-
-    parts.append('<h2>Outputs</h2><table border=1 cellpadding=3><tr><th>output</th><th>unit'
-                 '</th><th>mean</th><th>std</th><th>min</th><th>max</th></tr>')
-    for name in outputs:
-        y = cols[name][ok]
-        y = y[np.isfinite(y)]
-        stats = [y.mean(), y.std(), y.min(), y.max()] if y.size else [math.nan] * 4
-        parts.append(f'<tr><td>{name}</td><td>{units.get(name, "")}</td>'
-                     + ''.join(f'<td>{v:.5g}</td>' for v in stats) + '</tr>')
-    parts.append('</table>')
-
+             f'<p>{html.escape(sweep.method)}, {n} runs: {n_ok} ok, {n - n_ok} failed. '
+             'Inputs: ' + ', '.join(f'<code>{html.escape(v)}</code>' for v in sweep.names)
+             + '</p>',
+             pages.section('Outputs', pages.table(
+                 ['output', 'unit', 'mean', 'std', 'min', 'max'],
+                 [[name, units.get(name, ''), *(f'{v:.5g}' for v in _stats(cols[name][ok]))]
+                  for name in outputs]))]
     if n_ok:
-        fig, axes = plt.subplots(1, len(outputs), figsize=(3.2 * len(outputs), 2.6),
-                                 squeeze=False)
-        for ax, name in zip(axes[0], outputs):
-            y = cols[name][ok]
-            ax.hist(y[np.isfinite(y)], bins='auto', color='tab:blue')
-            ax.set_xlabel(f'{name} [{units.get(name, "")}]')
-        axes[0][0].set_ylabel('runs')
-        parts += ['<h2>Histograms</h2>', _png(fig)]
+        parts += _sensitivity_parts(plt, sweep, cols, ok, sens, outputs, units)
+    parts.append(pages.section('Worst runs', _worst_runs(sweep, cols, ok, outputs)))
+    parts.append(pages.section('Provenance', provenance.html(prov)))
+    return files.write_text(out / 'report.html',
+                            pages.page('hydropump sweep', PAGE_CSS, parts), 'report')
 
-        # Tornado: one panel per output, inputs sorted by |SRC|.
-        fig, axes = plt.subplots(1, len(outputs), figsize=(4.2 * len(outputs), 0.5 +
-                                 0.45 * len(sweep.names)), squeeze=False)
-        for ax, name in zip(axes[0], outputs):
-            s = sens[name]['src']
-            order = sorted(s, key=lambda k: abs(s[k]))
-            ax.barh(range(len(order)), [s[k] for k in order],
-                    color=['tab:red' if s[k] < 0 else 'tab:green' for k in order])
-            # Each panel has its own order: each names its inputs.
-            ax.set_yticks(range(len(order)), order, fontsize=7)
-            ax.axvline(0.0, color='k', lw=0.8)
-            ax.set_xlim(-1.05, 1.05)
-            ax.set_title(f'{name}\nR² = {sens[name]["r2"]:.3f}', fontsize=9)
-        parts += ['<h2>Sensitivities (tornado, standardised regression coefficients)</h2>',
-                  _png(fig)]
-        if any('mu_star' in sens[o] for o in outputs):
-            parts += ['<h2>Morris elementary effects (tornado of mu*, 95 % interval; '
-                      "the output's unit)</h2>", _png(_morris_tornado(plt, sweep, sens,
-                                                                         outputs, units))]
-        rows = ''.join(
-            f'<tr><td>{o}</td><td>{i}</td><td>{sens[o]["src"].get(i, math.nan):+.3f}</td>'
-            + (f'<td>{sens[o]["S1"][i]:.3f}</td><td>{sens[o]["ST"][i]:.3f}</td>'
-               if 'S1' in sens[o] else '<td></td><td></td>') + '</tr>'
-            for o in outputs for i in sweep.names)
-        parts.append('<table border=1 cellpadding=3><tr><th>output</th><th>input</th>'
-                     '<th>SRC</th><th>Sobol S1</th><th>Sobol ST</th></tr>' + rows + '</table>')
-        if any('mu_star' in sens[o] for o in outputs):
-            rows = ''.join(
-                f'<tr><td>{o}</td><td>{i}</td><td>{sens[o]["mu_star"][i]:.4g}</td>'
-                f'<td>{sens[o]["mu_star_conf"][i]:.3g}</td><td>{sens[o]["sigma"][i]:.4g}</td>'
-                f'<td>{units.get(o, "")}</td></tr>'
-                for o in outputs if 'mu_star' in sens[o] for i in sweep.names)
-            parts.append('<table border=1 cellpadding=3><tr><th>output</th><th>input</th>'
-                         '<th>Morris mu*</th><th>95 % +-</th><th>sigma</th><th>unit</th></tr>'
-                         + rows + '</table>')
 
-        fig, axes = plt.subplots(1, len(outputs), figsize=(3.2 * len(outputs), 2.6),
-                                 squeeze=False)
-        for ax, name in zip(axes[0], outputs):
-            s = sens[name]['src']
-            top = max(s, key=lambda k: abs(s[k])) if s else sweep.names[0]
-            ax.plot(cols[top][ok], cols[name][ok], '.', ms=4)
-            ax.set_xlabel(f'{top} [{units.get(top, "")}]', fontsize=8)
-            ax.set_ylabel(f'{name} [{units.get(name, "")}]', fontsize=8)
-        parts += ['<h2>Strongest input against each output</h2>', _png(fig)]
+def _stats(y: np.ndarray) -> list[float]:
+    """Mean, standard deviation, minimum and maximum of the finite values of ``y``."""
+    y = y[np.isfinite(y)]
+    return [y.mean(), y.std(), y.min(), y.max()] if y.size else [math.nan] * 4
 
-    # Worst runs: the failed ones, then the largest deviation from the mean in standard
-    # deviations over any output.
+
+def _sensitivity_parts(plt, sweep: Sweep, cols: dict, ok, sens: dict, outputs: list,
+                       units: dict) -> list[str]:
+    """Histograms, the tornado of SRC (and of Morris mu*), the tables of the indices, and
+    each output against its strongest input."""
+    fig, axes = plt.subplots(1, len(outputs), figsize=(3.2 * len(outputs), 2.6),
+                             squeeze=False)
+    for ax, name in zip(axes[0], outputs):
+        y = cols[name][ok]
+        ax.hist(y[np.isfinite(y)], bins='auto', color='tab:blue')
+        ax.set_xlabel(f'{name} [{units.get(name, "")}]')
+    axes[0][0].set_ylabel('runs')
+    parts = [pages.section('Histograms', _png(fig))]
+
+    # Tornado: one panel per output, inputs sorted by |SRC|.
+    fig, axes = plt.subplots(1, len(outputs), figsize=(4.2 * len(outputs), 0.5 +
+                             0.45 * len(sweep.names)), squeeze=False)
+    for ax, name in zip(axes[0], outputs):
+        s = sens[name]['src']
+        order = sorted(s, key=lambda k: abs(s[k]))
+        ax.barh(range(len(order)), [s[k] for k in order],
+                color=['tab:red' if s[k] < 0 else 'tab:green' for k in order])
+        # Each panel has its own order: each names its inputs.
+        ax.set_yticks(range(len(order)), order, fontsize=7)
+        ax.axvline(0.0, color='k', lw=0.8)
+        ax.set_xlim(-1.05, 1.05)
+        ax.set_title(f'{name}\nR² = {sens[name]["r2"]:.3f}', fontsize=9)
+    parts.append(pages.section('Sensitivities (tornado, standardised regression '
+                               'coefficients)', _png(fig)))
+    morris = [o for o in outputs if 'mu_star' in sens[o]]
+    if morris:
+        parts.append(pages.section(
+            "Morris elementary effects (tornado of mu*, 95 % interval; the output's unit)",
+            _png(_morris_tornado(plt, sweep, sens, outputs, units))))
+    parts.append(pages.table(
+        ['output', 'input', 'SRC', 'Sobol S1', 'Sobol ST'],
+        [[o, i, f'{sens[o]["src"].get(i, math.nan):+.3f}',
+          *((f'{sens[o]["S1"][i]:.3f}', f'{sens[o]["ST"][i]:.3f}') if 'S1' in sens[o]
+            else ('', ''))] for o in outputs for i in sweep.names]))
+    if morris:
+        parts.append(pages.table(
+            ['output', 'input', 'Morris mu*', '95 % +-', 'sigma', 'unit'],
+            [[o, i, f'{sens[o]["mu_star"][i]:.4g}', f'{sens[o]["mu_star_conf"][i]:.3g}',
+              f'{sens[o]["sigma"][i]:.4g}', units.get(o, '')]
+             for o in morris for i in sweep.names]))
+
+    fig, axes = plt.subplots(1, len(outputs), figsize=(3.2 * len(outputs), 2.6),
+                             squeeze=False)
+    for ax, name in zip(axes[0], outputs):
+        s = sens[name]['src']
+        top = max(s, key=lambda k: abs(s[k])) if s else sweep.names[0]
+        ax.plot(cols[top][ok], cols[name][ok], '.', ms=4)
+        ax.set_xlabel(f'{top} [{units.get(top, "")}]', fontsize=8)
+        ax.set_ylabel(f'{name} [{units.get(name, "")}]', fontsize=8)
+    parts.append(pages.section('Strongest input against each output', _png(fig)))
+    return parts
+
+
+def _worst_runs(sweep: Sweep, cols: dict, ok, outputs: list) -> str:
+    """The failed runs, then those deviating most from the mean in standard deviations over
+    any output: a table of at most ten."""
+    n = len(ok)
     z = np.zeros(n)
     for name in outputs:
         y = cols[name]
@@ -203,21 +215,11 @@ def write_report(sweep: Sweep, table: Path, out: Path) -> Path:
             z[good] = np.maximum(z[good], np.abs(y[good] - y[good].mean()) / y[good].std())
     z[~ok] = np.inf
     worst = np.argsort(-z)[:min(10, n)]
-    head = ''.join(f'<th>{h}</th>' for h in ['run', *sweep.names, *outputs, 'status',
-                                             'deviation [sd]', 'reason'])
-    body = ''
-    for k in worst:
-        cells = [str(cols['run_id'][k])] + [f'{cols[c][k]:.5g}' for c in sweep.names] + \
-            [f'{cols[c][k]:.5g}' for c in outputs] + \
-            [cols['status'][k], f'{z[k]:.2f}', html.escape(str(cols['reason'][k]))]
-        body += '<tr>' + ''.join(f'<td>{c}</td>' for c in cells) + '</tr>'
-    parts.append('<h2>Worst runs</h2><table border=1 cellpadding=3><tr>' + head + '</tr>'
-                 + body + '</table>')
-    parts.append('<h2>Provenance</h2>' + provenance.html(prov))
-    return files.write_text(out / 'report.html',
-                            '<!doctype html><meta charset="utf-8"><title>hydropump sweep'
-                            '</title><style>' + PAGE_CSS + '</style><body>' + '\n'.join(parts)
-                            + '</body>', 'report')
+    return pages.table(
+        ['run', *sweep.names, *outputs, 'status', 'deviation [sd]', 'reason'],
+        [[str(cols['run_id'][k]), *(f'{cols[c][k]:.5g}' for c in sweep.names),
+          *(f'{cols[c][k]:.5g}' for c in outputs), cols['status'][k], f'{z[k]:.2f}',
+          str(cols['reason'][k])] for k in worst])
 
 
 def _morris_tornado(plt, sweep: Sweep, sens: dict, outputs: list, units: dict):
