@@ -44,7 +44,7 @@ import numpy as np
 import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from hydropump_ctrl.experiments import excavator, fig1  # noqa: E402
+from hydropump_ctrl.demo import excavator, fig1  # noqa: E402
 from hydropump_ctrl.experiments.circuit_loop import controller_config, hydromechanical, run_circuit  # noqa: E402
 from hydropump_sim import load_params, simulate, Simulator  # noqa: E402
 from hydropump_sim.circuit import load_circuit  # noqa: E402

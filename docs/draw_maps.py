@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hydropump_ctrl.experiments.maps import draw_figures, spool_resonance
+from hydropump_ctrl.demo.maps import draw_figures, spool_resonance
 from hydropump_sim.params import load_params
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -126,7 +126,7 @@ def test_excavator_cycle_through_the_nodes(demo):
     relief's full-open pressure; the margin held where the pump can hold it."""
     import math
 
-    from hydropump_ctrl.experiments import excavator as ex
+    from hydropump_ctrl.demo import excavator as ex
     from hydropump_sim.circuit import load_circuit
 
     from ..conftest import ROOT

@@ -22,7 +22,7 @@ import math
 import numpy as np
 import pytest
 
-from hydropump_ctrl.experiments import excavator as ex
+from hydropump_ctrl.demo import excavator as ex
 from hydropump_sim.circuit import load_circuit
 
 from ..conftest import ROOT

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from hydropump_ctrl.experiments import campaign, report
+from hydropump_ctrl.demo import campaign, report
 from hydropump_ctrl.experiments.closed_loop import disturbance_figures
 from hydropump_ctrl.ident import PAPER, Recording
 from hydropump_sim.model import pump_flow

@@ -221,16 +221,16 @@ def test_bags_have_one_home_that_the_recorder_and_identification_share():
 
 
 def test_nothing_below_the_demo_application_imports_it():
-    """experiments/ is the demo application and its harnesses: identification, control,
-    bags, the recorder and the recording plans (a file format identification reads) stand
-    below it and take nothing from it."""
+    """demo/ is the demo application: identification, control, bags, the recorder, the
+    offline harnesses (experiments/) and the recording plans (a file format identification
+    reads) stand below it and take nothing from it."""
     graph = import_graph(module_files(PACKAGES['hydropump_ctrl'], 'hydropump_ctrl'))
-    below = ('ident', 'control', 'bag', 'recorder', 'plans', 'experiment')
+    below = ('ident', 'control', 'bag', 'recorder', 'plans', 'experiment', 'experiments')
 
     def under(name, part):
         return name == f'hydropump_ctrl.{part}' or name.startswith(f'hydropump_ctrl.{part}.')
     up = {(m, t) for m, e in graph.items() if any(under(m, b) for b in below)
-          for t in e if under(t, 'experiments')}
+          for t in e if under(t, 'demo')}
     assert not up, up
     assert 'hydropump_ctrl.plans' in graph['hydropump_ctrl.ident.design']
 

@@ -3,7 +3,7 @@ model), checked against the closed forms of eqs. 14-15 at each operating point."
 
 import numpy as np
 
-from hydropump_ctrl.experiments.maps import (
+from hydropump_ctrl.demo.maps import (
     dither_sensitivity,
     operating_map,
     spool_resonance,

@@ -11,7 +11,7 @@ import yaml
 from hydropump_ctrl import cli
 from hydropump_ctrl.cli import record as record_cli
 from hydropump_ctrl.control.schema import load_config
-from hydropump_ctrl.experiments.campaign import closed_loop_experiments, identification_experiments
+from hydropump_ctrl.demo.campaign import closed_loop_experiments, identification_experiments
 from hydropump_ctrl.ident.design import candidate_inputs
 from hydropump_ctrl.plans import (
     example_plan_path,

@@ -1,14 +1,18 @@
-"""Experiments on the plant: the closed-loop harness, the judged cases and the demo campaign.
+"""Experiments on the plant offline: the closed-loop harnesses and the judged cases.
 
-Everything an experiment needs apart from running the node graph, pure Python (nothing here
-imports ROS). Modules, each building only on those above it:
+Pure Python (nothing here imports ROS). Modules, each building only on those above it:
 
-- :mod:`.closed_loop` - the offline twin of the graph: fine-model simulator, sensor bank and
-  a controller at its rate (:func:`run_closed_loop`), and the figures of a run;
-- :mod:`.cases` - the judged closed-loop cases and the target table (docs/control.md);
-- :mod:`.plots`, :mod:`.report` - the figures and the HTML report of the demo;
-- :mod:`.campaign` - the demo's experiments (run through the nodes by ``hydropump-demo``),
-  the plant's own answer to them, and the analysis of their bags.
+- :mod:`.harness` - one closed loop over any model, sensors seeing every step as the
+  nodes' do (:func:`~.harness.run_loop`);
+- :mod:`.closed_loop` - the paper's plant in that loop (:func:`run_closed_loop`), and the
+  figures of a run;
+- :mod:`.circuit_loop` - a circuit in that loop, with the controller made for it;
+- :mod:`.cases` - the judged closed-loop cases, their limits as tables, and the target
+  table (docs/control.md).
+
+The demo application (its campaign, duty cycles, figures and report) is
+:mod:`hydropump_ctrl.demo`; the recording plans, a file format, are
+:mod:`hydropump_ctrl.plans`.
 """
 
 from .closed_loop import (

@@ -16,7 +16,7 @@ The three nodes are started once and every experiment goes through them
 simulator's ``~/reset`` and ``pause_at``, one bag per experiment from the recorder's
 ``~/start`` and ``~/stop``. Each node logs to ``<run>/logs/<node>.log`` and is ended by PID.
 A node that fails stops the run with a message that names it and its log. The experiments,
-the analysis of their bags and the report are pure (:mod:`hydropump_ctrl.experiments.campaign`).
+the analysis of their bags and the report are pure (:mod:`hydropump_ctrl.demo.campaign`).
 
 The options are checked before anything starts (every number in its range, ``--out`` a folder
 this user can write; ``--jobs`` capped at the CPUs, with a note): one ``error:`` line and exit
@@ -47,7 +47,7 @@ from hydropump_sim.errors import HydropumpError
 from .orchestration import starting, stop_on_sigterm
 
 if TYPE_CHECKING:
-    from hydropump_ctrl.experiments.campaign import Experiment
+    from hydropump_ctrl.experiment import Experiment
 
     from .orchestration import Graph
 
@@ -192,7 +192,7 @@ def main(argv=None) -> int:
     try:
         return run(args, run_dir)
     except HydropumpError as exc:
-        from hydropump_ctrl.experiments.campaign import one_line
+        from hydropump_ctrl.demo.campaign import one_line
         # One line: what failed (a stage names itself), and what the run keeps.
         print(f'error: {one_line(exc)}; {kept(run_dir)}', file=sys.stderr)
         return 1
@@ -222,7 +222,7 @@ def _run_stage(graph: Graph, what: str, stage: int, exps: list[Experiment], bag_
                starts: dict, tag: str = '') -> dict:
     """Run ``exps`` one after the other through ``graph``, with progress lines; the stage's
     times (:func:`stage_times`)."""
-    from hydropump_ctrl.experiments.campaign import stage_times
+    from hydropump_ctrl.demo.campaign import stage_times
 
     from .orchestration import run_experiments
     t0, running0 = time.perf_counter(), graph.running_s
@@ -241,7 +241,7 @@ def run_graph(stages: dict[str, list[Experiment]], run_dir: Path, log_dir: Path,
     (``topics`` recorded: the closed loop's by default), stop it, its nodes ended by PID
     whatever ends the run (SIGTERM included). Returns the stage times and each experiment's
     start time."""
-    from hydropump_ctrl.experiments.campaign import LOOP_TOPICS, stage, stage_times
+    from hydropump_ctrl.demo.campaign import LOOP_TOPICS, stage, stage_times
 
     from .orchestration import Graph, Orchestrator, own_domain
     topics = LOOP_TOPICS if topics is None else topics
@@ -286,7 +286,7 @@ def _split(exps: list[Experiment], n: int) -> list[list[Experiment]]:
 
 def _run_jobs(stages: dict, run_dir: Path, profile_path: Path, jobs: int) -> tuple[dict, dict]:
     """The experiments over ``jobs`` graphs at once, each in its own process and domain."""
-    from hydropump_ctrl.experiments.campaign import stage_times
+    from hydropump_ctrl.demo.campaign import stage_times
     exps = [e for group in stages.values() for e in group]
     groups = _split(exps, jobs)
     t0 = time.perf_counter()
@@ -310,7 +310,7 @@ def _start_fig1(pool, run_dir: Path, profile_path: Path, quick: bool):
     but not its dither (at 400 Hz it costs the stepper five times over and moves nothing a
     load sees); the controller runs config/controller_fig1.yaml (hydropump design
     --circuit)."""
-    from hydropump_ctrl.experiments import fig1
+    from hydropump_ctrl.demo import fig1
     from hydropump_sim.circuit import default_circuit_path, load_circuit
     from hydropump_sim.measure import recorded_topics
     from hydropump_sim.params import default_params_path
@@ -362,7 +362,7 @@ def _start_excavator(pool, run_dir: Path, profile_path: Path):
     200 Hz (one sample per control period: its modes are of a few hertz, and 40 topics at
     1 kHz would cost the graph more than the stepping); the controller runs
     config/controller_excavator.yaml (hydropump design --circuit)."""
-    from hydropump_ctrl.experiments import excavator
+    from hydropump_ctrl.demo import excavator
     from hydropump_sim.circuit import load_circuit
     from hydropump_sim.measure import recorded_topics
     path = excavator.circuit_path()
@@ -379,7 +379,7 @@ def _start_excavator(pool, run_dir: Path, profile_path: Path):
 
 
 def run(args, run_dir: Path) -> int:
-    from hydropump_ctrl.experiments.campaign import (
+    from hydropump_ctrl.demo.campaign import (
         analyse_campaign,
         BESIDE,
         BESIDE_EXCAVATOR,

@@ -5,7 +5,7 @@
   simulation clock and the controller's update instants;
 - :class:`Graph` - simulator, controller and recorder: started here (:meth:`Graph.start`, in
   lock-step, the simulator paused) or already running (:meth:`Graph.attach`); either way
-  :meth:`Graph.run` takes one :class:`~hydropump_ctrl.experiments.campaign.Experiment`
+  :meth:`Graph.run` takes one :class:`~hydropump_ctrl.demo.campaign.Experiment`
   through them into its bag, with live parameters, the simulator's ``~/reset`` and
   ``pause_at``, and the recorder's ``~/start`` and ``~/stop``;
 - :func:`run_experiments` - experiments one after the other with a line as each starts and
@@ -34,7 +34,7 @@ from hydropump_sim.errors import HydropumpError
 from .command_line import node_command
 
 if TYPE_CHECKING:  # light to import: a signal handler of the run uses stop()
-    from hydropump_ctrl.experiments.campaign import Experiment
+    from hydropump_ctrl.experiment import Experiment
 
 
 class GraphError(HydropumpError):

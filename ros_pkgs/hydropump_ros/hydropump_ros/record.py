@@ -19,7 +19,6 @@ from collections.abc import Callable
 from pathlib import Path
 import time
 
-from hydropump_ctrl.experiments.campaign import LOOP_TOPICS
 from hydropump_ctrl.plans import (
     check_plan,
     LOG_FOLDER,
@@ -28,6 +27,7 @@ from hydropump_ctrl.plans import (
     STANDARD,
     standard_plan,
 )
+from hydropump_sim.measure import suite_topics
 
 from .orchestration import Graph, Orchestrator, own_domain, run_experiments, stop_on_sigterm
 
@@ -65,7 +65,7 @@ def run(plan: Plan, params, args, echo: Callable[[str], None] = print) -> dict[s
             t0 = time.perf_counter()
             echo(f'[graph] simulator, controller and recorder (ROS domain {did}'
                  + (f', namespace {orch.namespace}' if orch.namespace else '') + ') ...')
-            graph = Graph.start(orch, out / LOG_FOLDER, LOOP_TOPICS,
+            graph = Graph.start(orch, out / LOG_FOLDER, suite_topics(),
                                 sensor_profile=args.profile, params_file=args.params,
                                 publish_rate=args.rate)
             try:

@@ -39,8 +39,8 @@ from hydropump_sim.sensors import SensorProfile
 
 from .. import provenance
 from ..experiment import EXCITATION_BASE, Experiment, operating_point  # noqa: F401
+from ..experiments.closed_loop import disturbance_figures, trim_current
 from ..ident import Recording
-from .closed_loop import disturbance_figures, trim_current
 
 # What the closed-loop experiments record: every topic of the suite (measure.suite_topics);
 # the identification leaves out the load's flow and the controller's state, which no fit of

@@ -348,8 +348,8 @@ def analyse(bag: Path, t0: float, profile) -> tuple[object, ExcavatorRun, dict]:
 def run_offline(circuit, config=None, profile=None):
     """The cycle in the offline twin, under EMC margin control (``config``: the
     controller's, default the design :func:`.circuit_loop.run_circuit` makes)."""
-    from .circuit_loop import run_circuit
-    from .harness import Event
+    from ..experiments.circuit_loop import run_circuit
+    from ..experiments.harness import Event
     events = [Event(t, name, value) for t, name, value in DUTY]
     # No settling run: the events of t = 0 would hold through it (the loop starts from
     # the steady state of the levers centred).

@@ -106,7 +106,7 @@ def fig1_experiments(circuit, variants: Sequence[tuple[str, str]] = VARIANTS,
     current)."""
     from hydropump_sim.steady import equilibrium
 
-    from .circuit_loop import start_current
+    from ..experiments.circuit_loop import start_current
     out = []
     for control, kind in variants:
         c = circuit.with_values({**START, 'boom.compensator': kind, 'motor.compensator': kind})
