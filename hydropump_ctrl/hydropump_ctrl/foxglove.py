@@ -298,7 +298,8 @@ def layout(base: Mapping[str, Any], namespace: str = '', topics=()) -> dict:
 
 def write_layout(path: Path, namespace: str = '', circuit_file: str | None = None) -> Path:
     """Write :func:`layout` for a graph in ``namespace`` with the circuit of ``circuit_file``
-    (its structure only: nothing is compiled) to ``path``. A file there that this suite
+    (its structure only: nothing is compiled) to ``path``, whole or not at all
+    (:class:`~hydropump_sim.files.WriteError` on a full disk). A file there that this suite
     did not write is never replaced: :class:`FileExistsError`."""
     from hydropump_sim.measure import model_topics
     topics = []
@@ -313,9 +314,6 @@ def write_layout(path: Path, namespace: str = '', circuit_file: str | None = Non
         if not ours:
             raise FileExistsError(f'{path}: exists and is not a layout hydropump wrote; '
                                   'move it, or run from another folder')
-    text = json.dumps(layout(json.loads(BASE_LAYOUT.read_text()), namespace, topics),
-                      indent=2) + '\n'
-    tmp = path.with_name(path.name + '.tmp')
-    tmp.write_text(text)
-    tmp.replace(path)
-    return path
+    from hydropump_sim.files import write_text
+    return write_text(path, json.dumps(layout(json.loads(BASE_LAYOUT.read_text()), namespace,
+                                              topics), indent=2) + '\n', 'Foxglove layout')

@@ -222,7 +222,7 @@ def plot_steps(steps: dict, params: Params, path) -> None:
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=8)
     fig.tight_layout()
-    save_figure(fig, path, dpi=110)
+    save_figure(fig, path, dpi=110, axes=True)  # a figure of the demo's report
     plt.close(fig)
 
 

@@ -2,6 +2,7 @@
 name is renamed both ways in the handshake and nothing else changes; a handshake head
 beyond the bound is dropped before any server is contacted."""
 
+from contextlib import contextmanager
 import socket
 import threading
 
@@ -45,48 +46,45 @@ def _recv_until(sock, marker: bytes) -> bytes:
     return out
 
 
-def test_the_old_name_is_renamed_both_ways_and_the_rest_passes_untouched():
+@contextmanager
+def relayed():
+    """A stand-in server, the relay in front of it, and a client connected to the relay."""
     server = Server()
     relay = Relay('127.0.0.1', 0, server.port)
     try:
         with socket.create_connection(('127.0.0.1', relay.port), timeout=10) as c:
-            c.sendall(REQUEST % b'foxglove.websocket.v1')
-            answer = _recv_until(c, b'\r\n\r\n')
-            assert answer == ANSWER.replace(b'foxglove.sdk.v1', b'foxglove.websocket.v1')
-            assert server.got == REQUEST % b'foxglove.sdk.v1'
-            frame = bytes(range(256)) * 8 + b'Sec-WebSocket-Protocol: foxglove.sdk.v1'
-            c.sendall(frame)
-            assert _recv_until(c, b'sdk.v1') == frame  # echoed as sent, both ways
+            yield server, c
     finally:
         relay.stop()
+
+
+def test_the_old_name_is_renamed_both_ways_and_the_rest_passes_untouched():
+    with relayed() as (server, c):
+        c.sendall(REQUEST % b'foxglove.websocket.v1')
+        answer = _recv_until(c, b'\r\n\r\n')
+        assert answer == ANSWER.replace(b'foxglove.sdk.v1', b'foxglove.websocket.v1')
+        assert server.got == REQUEST % b'foxglove.sdk.v1'
+        frame = bytes(range(256)) * 8 + b'Sec-WebSocket-Protocol: foxglove.sdk.v1'
+        c.sendall(frame)
+        assert _recv_until(c, b'sdk.v1') == frame  # echoed as sent, both ways
 
 
 def test_a_client_offering_the_new_name_passes_unchanged():
-    server = Server()
-    relay = Relay('127.0.0.1', 0, server.port)
-    try:
-        with socket.create_connection(('127.0.0.1', relay.port), timeout=10) as c:
-            request = REQUEST % b'foxglove.websocket.v1, foxglove.sdk.v1'
-            c.sendall(request)
-            assert _recv_until(c, b'\r\n\r\n') == ANSWER
-            assert server.got == request
-    finally:
-        relay.stop()
+    with relayed() as (server, c):
+        request = REQUEST % b'foxglove.websocket.v1, foxglove.sdk.v1'
+        c.sendall(request)
+        assert _recv_until(c, b'\r\n\r\n') == ANSWER
+        assert server.got == request
 
 
 def test_a_head_beyond_the_bound_is_dropped_before_the_server_is_contacted():
-    server = Server()
-    relay = Relay('127.0.0.1', 0, server.port)
-    try:
-        with socket.create_connection(('127.0.0.1', relay.port), timeout=10) as c:
-            try:
-                c.sendall(b'GET / HTTP/1.1\r\nX: ' + b'a' * (2 * MAX_HEAD))
-            except (BrokenPipeError, ConnectionResetError):
-                pass
-            try:
-                closed = c.recv(1) == b''
-            except ConnectionResetError:
-                closed = True
+    with relayed() as (server, c):
+        try:
+            c.sendall(b'GET / HTTP/1.1\r\nX: ' + b'a' * (2 * MAX_HEAD))
+        except (BrokenPipeError, ConnectionResetError):
+            pass
+        try:
+            closed = c.recv(1) == b''
+        except ConnectionResetError:
+            closed = True
         assert closed and not server.accepted.is_set()
-    finally:
-        relay.stop()

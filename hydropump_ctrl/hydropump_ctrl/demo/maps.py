@@ -107,7 +107,7 @@ def plot_operating_map(m: dict, path) -> None:
     fig.suptitle('eq. 19 of the plant (noise-free fine model) over the operating range',
                  fontsize=10)
     fig.tight_layout()
-    save_figure(fig, path, 'figure', dpi=90)
+    save_figure(fig, path, 'figure', axes=True, dpi=90)
     plt.close(fig)
 
 
@@ -128,7 +128,7 @@ def plot_dither_sensitivity(s: dict, path, resonance: float | None = None) -> No
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, title='dither amplitude')
     fig.tight_layout()
-    save_figure(fig, path, 'figure', dpi=90)
+    save_figure(fig, path, 'figure', axes=True, dpi=90)
     plt.close(fig)
 
 

@@ -27,7 +27,7 @@ def save(plt, fig, path, dpi: int = 100) -> Path:
     """``fig`` into ``path`` whole or not at all (a full disk: a
     :class:`~hydropump_sim.files.WriteError` naming the file), then closed either way."""
     try:
-        return save_figure(fig, path, dpi=dpi)
+        return save_figure(fig, path, dpi=dpi, axes=True)
     finally:
         plt.close(fig)
 

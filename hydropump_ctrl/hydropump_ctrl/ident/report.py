@@ -295,7 +295,7 @@ def _pyplot():
 
 def _save(plt, fig, path, dpi: int) -> Path:
     try:
-        return save_figure(fig, path, dpi=dpi)
+        return save_figure(fig, path, dpi=dpi, axes=True)
     finally:
         plt.close(fig)
 

@@ -21,6 +21,7 @@ import time
 
 from hydropump_ctrl.cli.options import float_in, int_in, Parser, UsageError
 from hydropump_ctrl.foxglove import FoxgloveConfig
+from hydropump_sim.errors import HydropumpError
 from hydropump_sim.params import default_params_path
 from hydropump_sim.schema import spec_map
 
@@ -119,7 +120,7 @@ def main(argv=None) -> int:
             where.mkdir(parents=True, exist_ok=True)
             layout = str(write_layout(where / 'foxglove_layout.json', args.namespace,
                                       args.circuit_file))
-        except (OSError, ValueError) as exc:
+        except (OSError, ValueError, HydropumpError) as exc:
             print(f'error: {exc}', file=sys.stderr)
             return 2
     env = dict(os.environ)
