@@ -1,24 +1,23 @@
 """Recording plans: the experiments of ``hydropump record``, and the same definitions offline.
 
-A plan is a list of experiments, each a current schedule with optional load-pressure and
-aperture steps. The standard calibration campaign is :func:`standard_plan`
-(``config/plans/calibration.yaml`` is the same plan for ``config/pump.yaml``); any other plan
-is a YAML file (docs/recording.md)::
+A plan is a list of experiments, each a current schedule (held levels, or a sine about an
+offset: what the controller runs) with optional load-pressure and aperture steps. The
+standard calibration campaign is :func:`standard_plan` (``config/plans/calibration.yaml``
+is the same plan for ``config/pump.yaml``); any other plan is a YAML file
+(docs/recording.md)::
 
     - name: stairs                 # the bag's name: letters, digits, _ . -
       label: staircase up          # optional: free text for the progress lines
       duration: 5.0                # s, simulated
-      current:                     # a staircase ...
-        shape: staircase
+      current:                     # a schedule (hydropump_sim.schedule): a staircase ...
+        staircase: {levels: [30, 40, 50, 60, 70], dwell: 1.0}   # s per level
         unit: percent              # percent of displacement (eq. 10) or A (absolute)
-        levels: [30, 40, 50, 60, 70]
-        dwell: 1.0                 # s per level
       load_pressure: [[0.0, 8.0e+6], [2.0, 1.2e+7]]   # Pa, gauge, held from t [s]
       aperture: [[3.0, 0.4]]       # -, 0..1, held from t [s]
       seed: 3                      # sensor noise seed (default: from the name)
     - name: check
       duration: 4.0
-      current: {shape: sine, unit: A, offset: 0.5, amplitude: 0.06, frequency: 0.5}
+      current: {offset: 0.5, sine: {amplitude: 0.06, frequency: 0.5}}   # A
       held_out: true               # kept out of a calibration, to validate on
 
 What each experiment holds, as arrays on a time grid, is :func:`held_inputs`: the absolute
@@ -48,8 +47,7 @@ import numpy as np
 from hydropump_sim.errors import HydropumpError
 from hydropump_sim.measure import suite_topics
 from hydropump_sim.params import default_params_path, input_spec, Params
-from hydropump_sim.scaling import current_for_displacement
-from hydropump_sim.scenario import time_value_pairs
+from hydropump_sim.schedule import parse_schedule, Schedule
 from hydropump_sim.schema import (
     check_number,
     check_value,
@@ -78,9 +76,12 @@ LOG_FOLDER = 'logs'
 
 EXPERIMENT_KEYS = ('name', 'label', 'duration', 'current', 'load_pressure', 'aperture', 'seed',
                    'held_out')
-SHAPES = {'staircase': ('levels', 'dwell'), 'sine': ('offset', 'amplitude', 'frequency')}
-CURRENT_KEYS = ('shape', 'unit') + SHAPES['staircase'] + SHAPES['sine']
+#: A plan's current is run by the controller: levels held from their times, or its sine
+#: about a constant offset; no ramp.
+CURRENT_BASES = ('steps', 'staircase', 'step', 'offset')
 UNITS = ('A', 'percent')
+#: The spelling of a current before the schedule grammar, still read (with a warning).
+OLD_SHAPES = {'staircase': ('levels', 'dwell'), 'sine': ('offset', 'amplitude', 'frequency')}
 NAME = re.compile(r'[A-Za-z0-9][A-Za-z0-9_.-]{0,99}$')
 SEED_MAX = 2 ** 31 - 1
 STEP_INPUTS = {'load_pressure': 'line.P_u', 'aperture': 'line.xi_u'}
@@ -92,43 +93,14 @@ class PlanError(HydropumpError, ValueError):
 
 # ---- the plan -------------------------------------------------------------------------------
 
-@dataclass(frozen=True)
-class Current:
-    """A current schedule: a staircase of ``levels`` held ``dwell`` seconds each, or the sine
-    ``offset + amplitude sin(2 pi frequency t)``; values in ``unit`` (``A``: absolute current;
-    ``percent``: of displacement, through the plant's static map, eq. 10)."""
+def is_sine(current: Schedule) -> bool:
+    """Whether a plan's current is the controller's sine (else held levels)."""
+    return current.sine != (0.0, 0.0, 0.0, 0.0)
 
-    shape: str
-    unit: str = 'A'
-    levels: tuple = ()
-    dwell: float = 0.0
-    offset: float = 0.0
-    amplitude: float = 0.0
-    frequency: float = 0.0
 
-    def amperes(self, params: Params, value):
-        """A level or an offset in :attr:`unit` as an absolute current [A]."""
-        if self.unit == 'A':
-            return np.asarray(value, dtype=float) if np.ndim(value) else float(value)
-        out = current_for_displacement(params, np.asarray(value, dtype=float) / 100.0)
-        return out if np.ndim(out) else float(out)
-
-    def amplitude_amperes(self, params: Params) -> float:
-        """The sine's amplitude [A] (the static map is affine: a span of the current range)."""
-        if self.unit == 'A':
-            return float(self.amplitude)
-        lo, hi = params.current_range
-        return float(self.amplitude) / 100.0 * (hi - lo)
-
-    def describe(self) -> str:
-        u = ' %' if self.unit == 'percent' else ' A'
-        if self.shape == 'sine':
-            return (f'sine {fmt(self.offset)} +- {fmt(self.amplitude)}{u} at '
-                    f'{fmt(self.frequency)} Hz')
-        if len(self.levels) == 1:
-            return f'current held at {fmt(self.levels[0])}{u}'
-        return (f'staircase {" -> ".join(fmt(v) for v in self.levels)}{u}, '
-                f'{fmt(self.dwell)} s each')
+def _describe(current: Schedule) -> str:
+    text = current.describe()
+    return 'current ' + text if text.startswith('held') else text
 
 
 @dataclass(frozen=True)
@@ -137,7 +109,7 @@ class PlanExperiment:
 
     name: str
     duration: float
-    current: Current
+    current: Schedule             # A or percent of displacement
     load_pressure: tuple = ()     # ((t [s], P_u [Pa, gauge]), ...)
     aperture: tuple = ()          # ((t [s], xi_u [-]), ...)
     seed: int | None = None
@@ -151,7 +123,7 @@ class PlanExperiment:
         return self.seed if self.seed is not None else zlib.crc32(self.name.encode()) % SEED_MAX
 
     def describe(self) -> str:
-        parts = [self.current.describe()]
+        parts = [_describe(self.current)]
         if self.load_pressure:
             parts.append('load ' + ', '.join(f'{fmt(v * 1e-5)} bar at {fmt(t)} s'
                                              for t, v in self.load_pressure))
@@ -208,7 +180,8 @@ def standard_plan(params: Params, dwell: float = 1.0, hold: float = 1.0) -> Plan
     both = up + up[::-1][1:]
 
     def stairs(levels):
-        return Current('staircase', 'percent', tuple(levels), dwell)
+        return Schedule('steps', tuple((k * dwell, v) for k, v in enumerate(levels)),
+                        unit='percent', dwell=dwell)
     exps = [
         PlanExperiment('staircase_up', len(up) * dwell, stairs(up), label='staircase up'),
         PlanExperiment('staircase_down', len(up) * dwell, stairs(up[::-1]),
@@ -216,12 +189,11 @@ def standard_plan(params: Params, dwell: float = 1.0, hold: float = 1.0) -> Plan
         PlanExperiment('staircases_low_load', len(both) * dwell, stairs(both),
                        load_pressure=((0.0, low),),
                        label='staircases at a lower load pressure'),
-        PlanExperiment('load_steps', 3.0 * hold, Current('staircase', 'percent', (50.0,),
-                                                         3.0 * hold),
+        PlanExperiment('load_steps', 3.0 * hold, Schedule(offset=50.0, unit='percent'),
                        load_pressure=((0.0, P_u), (hold, low), (2.0 * hold, P_u)),
                        label='load-pressure steps'),
-        PlanExperiment('sine_load_step', 4.0, Current('sine', 'percent', offset=50.0,
-                                                      amplitude=15.0, frequency=0.5),
+        PlanExperiment('sine_load_step', 4.0, Schedule(offset=50.0, sine=(15.0, 0.5, 0.0, 0.0),
+                                                       unit='percent'),
                        load_pressure=((2.0, low),), held_out=True,
                        label='held out: current sine with a load-pressure step'),
     ]
@@ -269,6 +241,7 @@ def parse_plan(doc: Any, params: Params, source: str = '', period: float = CONTR
         raise PlanError(['expected a list of experiments (- name: ..., duration: ..., '
                          'current: {...})'], source or None)
     errors: list[str] = []
+    notes: list[str] = []
     exps = []
     first: dict[str, int] = {}
     for i, item in enumerate(doc, 1):
@@ -281,14 +254,14 @@ def parse_plan(doc: Any, params: Params, source: str = '', period: float = CONTR
                               'names the bag)')
             first.setdefault(item['name'], i)
         before = len(errors)
-        exp = _experiment(item, where, errors)
+        exp = _experiment(item, where, errors, notes)
         if exp is not None and len(errors) == before:
             errors += [f'{where}: {line}' for line in experiment_errors(exp, params, period)]
             exps.append(exp)
     if errors:
         raise PlanError(errors, source or None)
     plan = Plan(exps, source=source)
-    plan.warnings = plan_warnings(plan, period)
+    plan.warnings = notes + plan_warnings(plan, period)
     return plan
 
 
@@ -306,7 +279,8 @@ def _unknown(key: Any, accepted: Sequence[str], what: str) -> str:
     return f'{key}: unknown {what}{hint}; accepted: {", ".join(accepted)}'
 
 
-def _experiment(item: Any, where: str, errors: list[str]) -> PlanExperiment | None:
+def _experiment(item: Any, where: str, errors: list[str], notes: list[str]
+                ) -> PlanExperiment | None:
     """The fields of one experiment, checked alone (types, presence, signs)."""
     if not isinstance(item, Mapping):
         errors.append(f'{where}: expected a mapping (name: ..., duration: ..., current: ...)')
@@ -329,7 +303,7 @@ def _experiment(item: Any, where: str, errors: list[str]) -> PlanExperiment | No
     else:
         duration = check_number(item['duration'], f'{where}: duration', errors, unit='s',
                                 sign='> 0')
-    current = _current(item.get('current'), f'{where}: current', errors)
+    current = _current(item.get('current'), f'{where}: current', errors, notes)
     steps = {}
     for key in STEP_INPUTS:
         steps[key] = _steps(item.get(key), f'{where}: {key}', errors)
@@ -351,67 +325,66 @@ def _experiment(item: Any, where: str, errors: list[str]) -> PlanExperiment | No
                           label if isinstance(label, str) else '')
 
 
-def _current(data: Any, where: str, errors: list[str]) -> Current | None:
+def _current(data: Any, where: str, errors: list[str], notes: list[str]) -> Schedule | None:
     if data is None:
-        errors.append(f'{where}: missing (a staircase: {{shape: staircase, unit: percent, '
-                      'levels: [...], dwell: 1.0}, or a sine: {shape: sine, unit: A, offset, '
-                      'amplitude, frequency})')
+        errors.append(f'{where}: missing (a staircase: {{staircase: {{levels: [...], dwell: '
+                      '1.0}, unit: percent}, or a sine: {offset: 0.5, sine: {amplitude, '
+                      'frequency}, unit: A})')
         return None
-    if not isinstance(data, Mapping):
-        errors.append(f'{where} = {data!r}: expected a mapping (shape: staircase or sine, ...)')
+    if isinstance(data, Mapping) and 'shape' in data:
+        data = _new_spelling(data, where, errors, notes)
+        if data is None:
+            return None
+    cur = parse_schedule(data, where, errors, units=UNITS, time_sign='>= 0',
+                         bases=CURRENT_BASES)
+    if cur is not None and is_sine(cur) and (cur.kind != 'constant' or cur.sine[2:] != (0, 0)
+                                             or cur.sine[1] <= 0):
+        errors.append(f'{where}.sine: the controller runs a sine of frequency > 0 about a '
+                      'constant offset, from the start (no steps under it, no phase or start)')
         return None
-    ok = True
+    return cur
+
+
+def _new_spelling(data: Mapping, where: str, errors: list[str], notes: list[str]
+                  ) -> dict | None:
+    """A current in the spelling before the schedule grammar (``shape: staircase`` or
+    ``shape: sine``) in today's, with a note naming it."""
+    shape = data['shape']
+    if shape not in OLD_SHAPES:
+        errors.append(f'{where}.shape = {shape!r}: expected staircase or sine (or write the '
+                      'schedule itself: staircase: {levels, dwell}, or offset and sine)')
+        return None
+    keys = OLD_SHAPES[shape]
+    before = len(errors)
     for key in data:
-        if key not in CURRENT_KEYS:
-            errors.append(f'{where}.{_unknown(key, CURRENT_KEYS, "key")}')
-            ok = False
-    shape = data.get('shape')
-    if shape not in SHAPES:
-        errors.append(f'{where}.shape = {shape!r}: expected staircase or sine')
+        if key not in ('shape', 'unit') + keys:
+            other = [s for s, k in OLD_SHAPES.items() if key in k]
+            errors.append(f'{where}.{key}: ' + (
+                f'belongs to a {other[0]}, not a {shape} (a {shape} takes {", ".join(keys)})'
+                if other else _unknown(key, ('shape', 'unit') + keys, 'key')))
+    if len(errors) > before:
         return None
-    for other, keys in SHAPES.items():
-        for key in keys:
-            if other != shape and key in data:
-                errors.append(f'{where}.{key}: belongs to a {other}, not a {shape} (a {shape} '
-                              f'takes {", ".join(SHAPES[shape])})')
-                ok = False
-    unit = data.get('unit', 'A')
-    if unit not in UNITS:
-        hint = ' (percent of displacement)' if unit in ('%', 'pct') else ''
-        errors.append(f'{where}.unit = {unit!r}: expected A or percent{hint}')
-        ok = False
-    u = '% of displacement' if unit == 'percent' else 'A'
+    out = {'unit': data['unit']} if 'unit' in data else {}
     if shape == 'staircase':
-        levels = data.get('levels')
-        if not isinstance(levels, list) or not levels:
-            errors.append(f'{where}.levels: expected a list of levels ({u}), e.g. [30, 40, 50]')
-            return None
-        values = [check_number(v, f'{where}.levels[{k}]', errors, unit=u, sign='>= 0')
-                  for k, v in enumerate(levels)]
-        if 'dwell' not in data:
-            errors.append(f'{where}.dwell: missing (s per level)')
-            return None
-        dwell = check_number(data['dwell'], f'{where}.dwell', errors, unit='s', sign='> 0')
-        if not ok or dwell is None or any(v is None for v in values):
-            return None
-        return Current('staircase', unit, tuple(values), dwell)
-    vals = {}
-    for key, unit_of in (('offset', u), ('amplitude', u), ('frequency', 'Hz')):
-        if key not in data:
-            errors.append(f'{where}.{key}: missing ({unit_of})')
-            ok = False
-            continue
-        vals[key] = check_number(data[key], f'{where}.{key}', errors, unit=unit_of,
-                                 sign='> 0' if key == 'frequency' else '>= 0')
-        ok = ok and vals[key] is not None
-    return Current('sine', unit, **vals) if ok else None
+        out['staircase'] = {k: data[k] for k in keys if k in data}
+        new = 'staircase: {levels: [...], dwell: ...}'
+    else:
+        out['offset'] = data.get('offset')
+        out['sine'] = {k: data[k] for k in ('amplitude', 'frequency') if k in data}
+        new = 'offset: ..., sine: {amplitude: ..., frequency: ...}'
+    notes.append(f'{where}: shape: {shape} is the old spelling; write {new}')
+    return out
 
 
 def _steps(data: Any, where: str, errors: list[str]) -> tuple | None:
-    """``[[t, value], ...]`` with increasing times; values are checked with the plant."""
+    """Load-pressure or aperture steps ``[[t, value], ...]`` (or one value from the start);
+    values are checked with the plant."""
     if data is None:
         return ()
-    return time_value_pairs(data, where, errors, time_sign='>= 0')
+    sched = parse_schedule(data, where, errors, time_sign='>= 0', bases=('steps', 'offset'))
+    if sched is None:
+        return None
+    return sched.points or ((0.0, sched.offset),)
 
 
 def experiment_errors(exp: PlanExperiment, params: Params, period: float = CONTROL_PERIOD
@@ -430,27 +403,31 @@ def experiment_errors(exp: PlanExperiment, params: Params, period: float = CONTR
             if not 0.0 <= value <= 100.0:
                 return (f'current.{what} = {fmt(value)} %: outside [0, 100] % of displacement'
                         + (' (a fraction? write percent: 0.5 -> 50)' if 0 < value < 1 else ''))
-            value = cur.amperes(params, value)
+            value = Schedule(offset=value, unit='percent').in_amperes(params).offset
         if not lo - 1e-12 <= value <= hi + 1e-12:
             return f'current.{what} = {fmt(value)} A: outside {eq2}'
         return None
-    if cur.shape == 'staircase':
-        for k, v in enumerate(cur.levels):
-            line = current_line(f'levels[{k}]', v)
-            if line:
-                out.append(line)
-        if cur.dwell < period - 1e-12:
-            out.append(f"current.dwell = {fmt(cur.dwell)} s: shorter than the controller's "
-                       f'update period ({fmt(period)} s)')
+    if is_sine(cur):
+        amp = cur.sine[0]
+        extremes = [('offset - amplitude', cur.offset - amp),
+                    ('offset + amplitude', cur.offset + amp)]
+    elif cur.dwell:
+        extremes = [(f'staircase.levels[{k}]', v) for k, v in enumerate(cur.levels)]
+    elif cur.points:
+        extremes = [(f'steps[{k}] value', v) for k, v in enumerate(cur.levels)]
     else:
-        for what, v in (('offset - amplitude', cur.offset - cur.amplitude),
-                        ('offset + amplitude', cur.offset + cur.amplitude)):
-            line = current_line(what, v)
-            if line:
-                out.append(line)
+        extremes = [('offset', cur.offset)]
+    out += [line for what, v in extremes if (line := current_line(what, v))]
+    gaps = np.diff([0.0] + [t for t, _ in cur.points])
+    if cur.points and np.any(gaps[1:] < period - 1e-12):
+        what = 'staircase.dwell' if cur.dwell else 'steps'
+        out.append(f"current.{what}: {fmt(float(np.min(gaps[1:])))} s between levels, shorter "
+                   f"than the controller's update period ({fmt(period)} s)")
+    if is_sine(cur):
         fs = controller_specs()['excitation.frequency']
-        if not fs.range[0] <= cur.frequency <= min(fs.range[1], 0.5 / period):
-            out.append(f"current.frequency = {fmt(cur.frequency)} Hz: outside the controller's "
+        freq = cur.sine[1]
+        if not fs.range[0] <= freq <= min(fs.range[1], 0.5 / period):
+            out.append(f"current.sine.frequency = {fmt(freq)} Hz: outside the controller's "
                        f'[{fmt(fs.range[0])}, {fmt(min(fs.range[1], 0.5 / period))}] Hz')
     for key in STEP_INPUTS:
         spec = input_spec(key)
@@ -475,13 +452,13 @@ def plan_warnings(plan: Plan, period: float = CONTROL_PERIOD) -> list[str]:
                    'leaves none to validate on')
     for e in plan.experiments:
         cur = e.current
-        reached = math.ceil(e.duration / cur.dwell - 1e-9) if cur.shape == 'staircase' else 0
-        if reached < len(cur.levels):
+        late = sum(t >= e.duration - 1e-9 for t in cur.change_times)
+        if late:
             out.append(f'experiment {e.name}: duration {fmt(e.duration)} s ends before the last'
-                       f' level: {len(cur.levels) - reached} of {len(cur.levels)} levels are '
-                       f'never reached')
-        times = [('duration', e.duration)] + ([('current.dwell', cur.dwell)]
-                                              if cur.shape == 'staircase' else [])
+                       f' level: {late} of {len(cur.levels)} levels are never reached')
+        times = [('duration', e.duration)]
+        times += ([('current.staircase.dwell', cur.dwell)] if cur.dwell else
+                  [(f'current.steps[{k}] time', t) for k, (t, _) in enumerate(cur.points)])
         times += [(f'{key}[{k}] time', t) for key in STEP_INPUTS
                   for k, (t, _) in enumerate(getattr(e, key))]
         for what, t in times:
@@ -552,15 +529,14 @@ def held_inputs(exp: PlanExperiment, params: Params, dt: float = 1.0e-3,
     """
     n = int(round(exp.duration / dt))
     t = np.arange(n) * dt
-    cur = exp.current
-    if cur.shape == 'staircase':
-        amps = np.atleast_1d(cur.amperes(params, list(cur.levels)))
-        current = _held(n, amps[0], [(_index(control_instant(j * cur.dwell, period), dt),
-                                      float(a)) for j, a in enumerate(amps)])
-    else:
+    cur = exp.current.in_amperes(params)
+    if is_sine(cur):
+        amp, freq, _, _ = cur.sine
         tc = t if not period else np.floor(t / period + 1e-6) * period
-        current = cur.amperes(params, cur.offset) + cur.amplitude_amperes(params) * np.sin(
-            2.0 * np.pi * cur.frequency * tc)
+        current = cur.offset + amp * np.sin(2.0 * np.pi * freq * tc)
+    else:
+        current = _held(n, cur.levels[0], [(_index(control_instant(ts, period), dt), a)
+                                           for ts, a in cur.points])
 
     def steps(key: str, initial: float) -> np.ndarray:
         return _held(n, initial, [(_index(control_instant(ts, period), dt), v)
@@ -577,26 +553,25 @@ def node_experiment(exp: PlanExperiment, params: Params, period: float = CONTROL
     staircase per level (``excitation.repeat`` false, so nothing restarts), each next level
     set at its control instant; a sine as the controller's own; load-pressure and aperture
     steps as the simulator's live ``line.P_u`` and ``line.xi_u``."""
-    cur = exp.current
+    cur = exp.current.in_amperes(params)
     base = {'controller.mode': 'open_loop', 'excitation.unit': 'A',
             'excitation.direction': 'up', 'excitation.repeat': False}
     events = []
-    if cur.shape == 'staircase':
-        amps = [float(a) for a in np.atleast_1d(cur.amperes(params, list(cur.levels)))]
+    if is_sine(cur):
+        start = cur.offset
+        ctrl = {**base, 'excitation.frequency': cur.sine[1], 'excitation.amplitude': cur.sine[0],
+                'excitation.offset': start, 'excitation.signal': 'sine'}
+    else:
+        amps = cur.levels
         start = amps[0]
         # One level, held (no repeat): its dwell does not matter. The next levels are set
         # on levels_min, at or below levels_max.
         ctrl = {**base, 'excitation.levels_min': start, 'excitation.levels_max': max(amps),
                 'excitation.n_levels': 1, 'excitation.signal': 'staircase'}
-        for j, a in enumerate(amps[1:], 1):
-            t = control_instant(j * cur.dwell, period)
+        for ts, a in cur.points[1:]:
+            t = control_instant(ts, period)
             if t < exp.duration - 1e-9:
                 events.append((t, 'controller', {'excitation.levels_min': a}))
-    else:
-        start = cur.amperes(params, cur.offset)
-        ctrl = {**base, 'excitation.frequency': cur.frequency,
-                'excitation.amplitude': cur.amplitude_amperes(params),
-                'excitation.offset': start, 'excitation.signal': 'sine'}
     inputs = {}
     for key, name in STEP_INPUTS.items():
         for ts, v in getattr(exp, key):

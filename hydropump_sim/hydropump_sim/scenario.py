@@ -14,9 +14,9 @@ One format serves ``hydropump simulate`` and the ROS simulator node. Example::
       load_pressure: 1.2e+7      # Pa (gauge)
       shaft_speed: 25.0          # Hz
 
-A signal is a number, or a mapping with ``steps`` (held values) or ``ramp`` (linear
-interpolation) as ``[t, value]`` pairs, or ``offset``, plus an optional ``sine``
-(``amplitude``, ``frequency`` [Hz], ``phase`` [rad], ``start`` [s]); the parts add up.
+A signal is a schedule (:mod:`hydropump_sim.schedule`, the grammar plans and sweeps share):
+a number, or ``steps`` or ``ramp`` as ``[t, value]`` pairs, a ``staircase``, or an
+``offset``, plus an optional ``sine``; the current may be given in ``unit: percent``.
 """
 
 from __future__ import annotations
@@ -29,9 +29,9 @@ from typing import Any
 import numpy as np
 
 from .errors import HydropumpError
-from .inputs import held
 from .params import check_input, default_params_path, INPUTS, load_params, Params
-from .schema import check_number, fmt, ParamError, read_yaml, unknown_key_line
+from .schedule import CURRENT_UNITS, parse_schedule, Schedule
+from .schema import check_number, ParamError, read_yaml, unknown_key_line
 
 SIGNALS = {
     'current': ('A', 'absolute solenoid current'),
@@ -40,38 +40,12 @@ SIGNALS = {
     'shaft_speed': ('Hz', 'shaft frequency f_p'),
 }
 _TOP_KEYS = {'duration', 'model', 'params', 'overrides', 'inputs', 'dt_out', 'output'}
-_SIGNAL_KEYS = {'steps', 'ramp', 'offset', 'sine'}
-_SINE_KEYS = {'amplitude', 'frequency', 'phase', 'start'}
 
 
 class ScenarioError(HydropumpError, ValueError):
     """Invalid scenario: ``lines`` holds one line per problem."""
 
     head = 'invalid scenario'
-
-
-@dataclass(frozen=True)
-class Signal:
-    """A scheduled signal; call it with a time or an array of times [s]."""
-
-    kind: str = 'constant'            # constant | steps | ramp
-    points: tuple = ()                # ((t, value), ...)
-    offset: float = 0.0
-    sine: tuple = (0.0, 0.0, 0.0, 0.0)  # amplitude, frequency, phase, start
-
-    def __call__(self, t):
-        t = np.asarray(t, dtype=float)
-        if self.kind == 'constant':
-            v = np.full(t.shape, self.offset)
-        else:
-            ts = np.array([pt[0] for pt in self.points])
-            vs = np.array([pt[1] for pt in self.points])
-            v = np.interp(t, ts, vs) if self.kind == 'ramp' else np.asarray(held(ts, vs)(t))
-        amp, freq, phase, start = self.sine
-        if amp:
-            v = v + np.where(t >= start, amp * np.sin(2 * np.pi * freq * (t - start) + phase),
-                             0.0)
-        return v if v.ndim else float(v)
 
 
 @dataclass
@@ -84,77 +58,15 @@ class Scenario:
     output: str | None = None
 
 
-def time_value_pairs(raw: Any, where: str, errors: list[str], *, time_sign: str = '',
-                     unit: str = '') -> tuple | None:
-    """``[[t, value], ...]`` with increasing times (``time_sign``: ``'>= 0'`` where time
-    counts from a start; ``unit``: the value's unit, named in the messages), else ``None``
-    and one line in ``errors``: the one reader of held and ramped points, for scenarios and
-    recording plans alike."""
-    of = f', the value in {unit}' if unit else ''
-    form = f'{where}: expected [[t, value], ...] (t in s{of}'
-    if not isinstance(raw, list) or not raw:
-        errors.append(f'{form}; a list of pairs)')
-        return None
-    out = []
-    for k, pair in enumerate(raw):
-        if not (isinstance(pair, (list, tuple)) and len(pair) == 2):
-            errors.append(f'{form}); item {k} is {pair!r}')
-            return None
-        t = check_number(pair[0], f'{where}[{k}] time', errors, unit='s', sign=time_sign)
-        v = check_number(pair[1], f'{where}[{k}] value', errors, unit=unit)
-        if t is None or v is None:
-            return None
-        out.append((t, v))
-    if any(b[0] <= a[0] for a, b in zip(out, out[1:])):
-        errors.append(f'{where}: times must increase ({", ".join(fmt(t) for t, _ in out)} s)')
-        return None
-    return tuple(out)
-
-
-def parse_signal(spec: Any, name: str, errors: list[str]) -> Signal | None:
-    """Build a :class:`Signal` from its YAML form, appending problems to ``errors``."""
-    where = f'inputs.{name}'
-    if not isinstance(spec, Mapping):
-        v = check_number(spec, where, errors)
-        return None if v is None else Signal(offset=v)
-    unknown = set(spec) - _SIGNAL_KEYS
-    if unknown:
-        errors.append(f'{where}: unknown key(s) {", ".join(sorted(map(str, unknown)))} '
-                      f'(use {", ".join(sorted(_SIGNAL_KEYS))})')
-    if 'steps' in spec and 'ramp' in spec:
-        errors.append(f'{where}: give steps or ramp, not both')
-        return None
-    kind, points = 'constant', ()
-    for key in ('steps', 'ramp'):
-        if key in spec:
-            kind = key
-            points = time_value_pairs(spec[key], f'{where}.{key}', errors)
-            if points is None:
-                return None
-    offset = 0.0
-    if 'offset' in spec:
-        if kind != 'constant':
-            errors.append(f'{where}: offset only goes with a sine, not with {kind}')
-        offset = check_number(spec['offset'], f'{where}.offset', errors) or 0.0
-    sine = (0.0, 0.0, 0.0, 0.0)
-    if 'sine' in spec:
-        s = spec['sine']
-        if not isinstance(s, Mapping) or 'amplitude' not in s or 'frequency' not in s:
-            errors.append(f'{where}.sine: expected amplitude and frequency')
-            return None
-        bad = set(s) - _SINE_KEYS
-        if bad:
-            errors.append(f'{where}.sine: unknown key(s) {", ".join(sorted(map(str, bad)))}')
-        vals = [check_number(s.get(k, 0.0), f'{where}.sine.{k}', errors) for k in
-                ('amplitude', 'frequency', 'phase', 'start')]
-        if any(v is None for v in vals):
-            return None
-        sine = tuple(vals)
-    return Signal(kind=kind, points=points, offset=offset, sine=sine)
+def parse_signal(spec: Any, name: str, errors: list[str]) -> Schedule | None:
+    """The schedule of input ``name`` (a current may be written in A, percent or fraction of
+    displacement), appending problems to ``errors``."""
+    return parse_schedule(spec, f'inputs.{name}', errors,
+                          units=CURRENT_UNITS if name == 'current' else ())
 
 
 def parse_inputs(data: Any, errors: list[str], names: Collection[str] | None = None
-                 ) -> dict[str, Signal]:
+                 ) -> dict[str, Schedule]:
     """Parse the ``inputs`` mapping of a scenario; ``names``: the inputs accepted (default
     the pump's; a circuit adds its own, ``boom.command``)."""
     if data is None:
@@ -175,7 +87,7 @@ def parse_inputs(data: Any, errors: list[str], names: Collection[str] | None = N
     return out
 
 
-def check_signals(inputs: dict[str, Signal], duration: float) -> list[str]:
+def check_signals(inputs: dict[str, Schedule], duration: float) -> list[str]:
     """One line per operating-point input that leaves its accepted range (the range of its
     plant parameter: ``line.P_u``, ``line.xi_u``, ``pump.f_p``) within ``duration`` [s];
     the same check :func:`hydropump_sim.simulate` makes on its inputs."""
@@ -197,7 +109,7 @@ def check_signals(inputs: dict[str, Signal], duration: float) -> list[str]:
 INPUT_PERIOD = 1.0e-3
 
 
-def _aliased(inputs: Mapping[str, Signal], period: float) -> list[str]:
+def _aliased(inputs: Mapping[str, Schedule], period: float) -> list[str]:
     """A line per sine the input sampling cannot carry (at or above its Nyquist rate)."""
     nyquist = 0.5 / period
     return [f'inputs.{name}.sine.frequency = {sig.sine[1]:g} Hz: at or above half the input '
@@ -254,6 +166,8 @@ def load_scenario(path: str | Path, names: Collection[str] | None = None) -> Sce
         errors.extend(exc.lines)
     if errors:
         raise ScenarioError(errors, str(path))
+    if 'current' in inputs:
+        inputs['current'] = inputs['current'].in_amperes(params)
     return Scenario(duration=duration, model=model, params=params, inputs=inputs,
                     dt_out=dt_out, output=doc.get('output'))
 

@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from hydropump_ctrl.ident import read_recordings
-from hydropump_ctrl.plans import held_inputs, load_plan
+from hydropump_ctrl.plans import held_inputs, is_sine, load_plan
 from hydropump_sim.params import default_params_path, load_params
 
 from .rosutil import spin_until
@@ -24,12 +24,10 @@ pytestmark = pytest.mark.ros
 HYDROPUMP = str(Path(sys.executable).with_name('hydropump'))
 PLAN = [
     {'name': 'stairs', 'duration': 1.0, 'load_pressure': [[0.5, 9.0e6]],
-     'current': {'shape': 'staircase', 'unit': 'percent', 'levels': [40, 60, 50],
-                 'dwell': 0.3}},
+     'current': {'staircase': {'levels': [40, 60, 50], 'dwell': 0.3}, 'unit': 'percent'}},
     {'name': 'check', 'duration': 0.8, 'held_out': True, 'load_pressure': [[0.4, 1.0e7]],
      'aperture': [[0.2, 0.4]],
-     'current': {'shape': 'sine', 'unit': 'A', 'offset': 0.5, 'amplitude': 0.05,
-                 'frequency': 2.0}},
+     'current': {'offset': 0.5, 'sine': {'amplitude': 0.05, 'frequency': 2.0}}},
 ]
 
 
@@ -75,7 +73,7 @@ def check_bags(out: Path, plan_path: Path, stdout: str) -> None:
         n = planned.t.size                      # the bag has the end's sample too
         cmd = rec['solenoid_current_cmd'][:n]
         want = planned.current
-        if exp.current.shape == 'staircase':
+        if not is_sine(exp.current):
             got_at, want_at = _changes(cmd), _changes(want)
             assert len(got_at) == len(want_at) and all(
                 abs(g - w) <= 1 for g, w in zip(got_at, want_at)), (exp.name, got_at, want_at)

@@ -31,10 +31,9 @@ DWELL = 0.5  # s
 PLAN = [
     # Far longer than the test waits: SIGTERM comes in its middle.
     {'name': 'long', 'duration': 600.0,
-     'current': {'shape': 'staircase', 'unit': 'A', 'levels': list(LEVELS), 'dwell': DWELL}},
+     'current': {'staircase': {'levels': list(LEVELS), 'dwell': DWELL}, 'unit': 'A'}},
     {'name': 'check', 'duration': 0.5, 'held_out': True,
-     'current': {'shape': 'sine', 'unit': 'A', 'offset': 0.5, 'amplitude': 0.05,
-                 'frequency': 2.0}},
+     'current': {'offset': 0.5, 'sine': {'amplitude': 0.05, 'frequency': 2.0}}},
 ]
 
 

@@ -322,3 +322,50 @@ def test_the_measured_signals_are_listed_in_one_place(tmp_path):
     probe = tmp_path / 'probe.py'
     probe.write_text("X = ('line_flow', 'pump_flow', 'load_flow')\n")
     assert _signal_lists(probe, names)
+
+
+# The words only a schedule parser reads from a mapping (hydropump_sim.schedule's keys).
+SCHEDULE_WORDS = {'steps', 'ramp', 'staircase', 'dwell', 'levels', 'amplitude'}
+
+
+def _key_read(node: ast.AST) -> str | None:
+    """The constant key ``node`` reads from a mapping: ``x['k']``, ``x.get('k')``, ``'k' in
+    x``."""
+    if isinstance(node, ast.Subscript) and isinstance(node.ctx, ast.Load) and \
+            isinstance(node.slice, ast.Constant):
+        return node.slice.value
+    if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and \
+            node.func.attr == 'get' and node.args and isinstance(node.args[0], ast.Constant):
+        return node.args[0].value
+    if isinstance(node, ast.Compare) and isinstance(node.left, ast.Constant) and \
+            any(isinstance(op, (ast.In, ast.NotIn)) for op in node.ops):
+        return node.left.value
+    return None
+
+
+def _schedule_reads(path: Path) -> list[str]:
+    """Functions in ``path`` that read two or more schedule words from mappings (one alone
+    is another concept's key: Morris ``levels``, a results table's ``steps``)."""
+    out = []
+    for fn in ast.walk(ast.parse(path.read_text())):
+        if not isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            continue
+        words = {k for node in ast.walk(fn) if (k := _key_read(node)) in SCHEDULE_WORDS}
+        if len(words) >= 2:
+            out.append(f'{path}:{fn.lineno} {fn.name}: reads {sorted(words)}')
+    return out
+
+
+def test_input_schedules_have_one_parser(tmp_path):
+    """hydropump_sim.schedule is the one reader of scheduled inputs: scenarios, recording
+    plans and sweeps call it, so a staircase means one thing everywhere. A module that reads
+    a schedule's keys itself is a second parser."""
+    home = ROOT / 'hydropump_sim' / 'hydropump_sim' / 'schedule.py'
+    found = [hit for folder in PACKAGES.values() for path in sorted(folder.rglob('*.py'))
+             if path != home for hit in _schedule_reads(path)]
+    assert not found, 'a second parser of input schedules:\n' + '\n'.join(found)
+    # The check finds each way of reading a key.
+    probe = tmp_path / 'probe.py'
+    for reads in ("raw['dwell'], raw.get('levels')", "'ramp' in raw or 'steps' in raw"):
+        probe.write_text(f'def f(raw):\n    return {reads}\n')
+        assert _schedule_reads(probe), reads

@@ -27,8 +27,7 @@ from hydropump_ctrl.plans import (
 from ..conftest import ROOT
 
 STAIRS = {'name': 'stairs', 'duration': 1.0,
-          'current': {'shape': 'staircase', 'unit': 'percent', 'levels': [40, 60, 50],
-                      'dwell': 0.3}}
+          'current': {'staircase': {'levels': [40, 60, 50], 'dwell': 0.3}, 'unit': 'percent'}}
 
 
 def _errors(doc, params):
@@ -114,7 +113,7 @@ def test_a_plan_file_parses_into_si_experiments(params, tmp_path):
     path.write_text(yaml.safe_dump([
         STAIRS | {'load_pressure': [[0.5, 9.0e6]], 'seed': 4},
         {'name': 'check', 'duration': 0.8, 'held_out': True, 'aperture': [[0.2, 0.4]],
-         'current': {'shape': 'sine', 'offset': 0.5, 'amplitude': 0.05, 'frequency': 2.0}}]))
+         'current': {'offset': 0.5, 'sine': {'amplitude': 0.05, 'frequency': 2.0}}}]))
     plan = load_plan(path, params)
     assert plan.warnings == [] and plan.held_out == ['check']
     stairs, check = plan.experiments
@@ -132,24 +131,35 @@ def test_a_plan_file_parses_into_si_experiments(params, tmp_path):
 @pytest.mark.parametrize('change, expected', [
     ({'held-out': True}, 'experiment 1 (stairs): held-out: unknown key (did you mean '
                          'held_out?); accepted: name, label, duration'),
-    ({'current': {**STAIRS['current'], 'level': [1]}},
-     'experiment 1 (stairs): current.level: unknown key (did you mean levels?)'),
+    ({'current': {'staircase': {'levels': [40], 'dwel': 1.0}}},
+     'experiment 1 (stairs): current.staircase.dwel: unknown key (did you mean dwell?); use '
+     'levels, dwell'),
+    ({'current': {'staircase': {'levels': [40]}}},
+     'experiment 1 (stairs): current.staircase: missing dwell (a staircase takes levels, '
+     'dwell)'),
     ({'duration': -1.0}, 'experiment 1 (stairs): duration = -1.0: expected a finite number > 0'
                          ' (s)'),
     ({'duration': math.nan}, 'experiment 1 (stairs): duration = nan: expected a finite number'),
     ({'duration': '1.5e1'}, "duration = '1.5e1': expected a finite number > 0 (s) (YAML read "
                             'it as text'),
-    ({'current': {'shape': 'staircase', 'levels': [0.5, 1.2], 'dwell': 0.3}},
-     "experiment 1 (stairs): current.levels[1] = 1.2 A: outside the plant's current range of "
-     'eq. 2, [0.1, 0.9] A'),
-    ({'current': {**STAIRS['current'], 'levels': [40, 120]}},
-     'experiment 1 (stairs): current.levels[1] = 120 %: outside [0, 100] % of displacement'),
-    ({'current': {'shape': 'sine', 'offset': 0.85, 'amplitude': 0.1, 'frequency': 1.0}},
+    ({'current': {'staircase': {'levels': [0.5, 1.2], 'dwell': 0.3}}},
+     "experiment 1 (stairs): current.staircase.levels[1] = 1.2 A: outside the plant's current "
+     'range of eq. 2, [0.1, 0.9] A'),
+    ({'current': {'staircase': {'levels': [40, 120], 'dwell': 0.3}, 'unit': 'percent'}},
+     'experiment 1 (stairs): current.staircase.levels[1] = 120 %: outside [0, 100] % of '
+     'displacement'),
+    ({'current': {'steps': [[0, 0.5], [0.5, 0.95]]}},
+     "experiment 1 (stairs): current.steps[1] value = 0.95 A: outside the plant's current"),
+    ({'current': {'offset': 0.85, 'sine': {'amplitude': 0.1, 'frequency': 1.0}}},
      "current.offset + amplitude = 0.95 A: outside the plant's current range of eq. 2"),
-    ({'current': {**STAIRS['current'], 'frequency': 2.0}},
-     'current.frequency: belongs to a sine, not a staircase'),
-    ({'current': {**STAIRS['current'], 'dwell': 0.001}},
-     "current.dwell = 0.001 s: shorter than the controller's update period (0.005 s)"),
+    ({'current': {'ramp': [[0, 0.5], [0.5, 0.6]]}},
+     'experiment 1 (stairs): current.ramp: not here; use steps, staircase, step, offset'),
+    ({'current': {'steps': [[0, 0.5], [0.5, 0.6]], 'sine': {'amplitude': 0.1,
+                                                           'frequency': 1.0}}},
+     'current.sine: the controller runs a sine of frequency > 0 about a constant offset'),
+    ({'current': {'staircase': {'levels': [0.5, 0.6], 'dwell': 0.001}}},
+     "current.staircase.dwell: 0.001 s between levels, shorter than the controller's update "
+     'period (0.005 s)'),
     ({'current': {**STAIRS['current'], 'unit': '%'}},
      "current.unit = '%': expected A or percent (percent of displacement)"),
     ({'current': None}, 'experiment 1 (stairs): current: missing (a staircase:'),
@@ -180,9 +190,9 @@ def test_every_problem_of_a_plan_at_once_and_duplicate_names(params):
         'experiment needs its own (it names the bag)',
         'experiment 2 (stairs): duration = 0: expected a finite number > 0 (s)',
         'experiment 3: name: missing (the bag name: letters, digits, _ . -)',
-        'experiment 3: current: missing (a staircase: {shape: staircase, unit: percent, '
-        'levels: [...], dwell: 1.0}, or a sine: {shape: sine, unit: A, offset, amplitude, '
-        'frequency})',
+        'experiment 3: current: missing (a staircase: {staircase: {levels: [...], dwell: '
+        '1.0}, unit: percent}, or a sine: {offset: 0.5, sine: {amplitude, frequency}, unit: '
+        'A})',
         'experiment 4: expected a mapping (name: ..., duration: ..., current: ...)']
     assert _errors({'name': 'x'}, params) == [
         'expected a list of experiments (- name: ..., duration: ..., current: {...})']
@@ -233,8 +243,8 @@ def test_every_experiment_passes_the_controller_checks_from_any_before(params):
     experiments and after each other."""
     plans = standard_plan(params).experiments + parse_plan([
         STAIRS | {'held_out': True},
-        {'name': 's', 'duration': 1, 'current': {'shape': 'sine', 'unit': 'A', 'offset': 0.5,
-                                                 'amplitude': 0.1, 'frequency': 3.0}}],
+        {'name': 's', 'duration': 1, 'current': {'offset': 0.5, 'unit': 'A', 'sine': {
+            'amplitude': 0.1, 'frequency': 3.0}}}],
         params).experiments
     ours = [node_experiment(e, params) for e in plans]
     demo = identification_experiments(params, 3) + closed_loop_experiments(params)

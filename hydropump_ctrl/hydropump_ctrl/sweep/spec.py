@@ -37,6 +37,7 @@ import numpy as np
 from hydropump_sim.errors import HydropumpError
 from hydropump_sim.model import OUTPUTS
 from hydropump_sim.params import load_params, Params
+from hydropump_sim.schedule import CURRENT_UNITS, late_changes, parse_schedule
 from hydropump_sim.schema import (
     check_number,
     check_value,
@@ -76,19 +77,6 @@ RELATIONS = (
     ('spool.phi_s', ('spool.K_a', 'pump.x_a_max', 'spool.I_max'), lambda k, x, i: k * x / i),
     ('spool.K_a', ('spool.phi_s', 'spool.I_max', 'pump.x_a_max'), lambda p, i, x: p * i / x),
 )
-
-
-@dataclass(frozen=True)
-class Steps:
-    """Absolute current [A] held at ``values[k]`` from ``times[k]`` [s] on: picklable for the
-    workers, and its repr (part of the sweep's fingerprint) is the same in every process."""
-
-    times: tuple
-    values: tuple
-
-    def __call__(self, t):
-        from hydropump_sim import held
-        return held(np.array(self.times), np.array(self.values))(t)
 
 
 @dataclass(frozen=True)
@@ -205,53 +193,23 @@ def _resolve(path: Any, base: Path, where: str, errors: list[str]) -> Path | Non
 # ---- experiment ---------------------------------------------------------------------------
 
 def _current(block: Any, duration: float, plant: Params, errors: list[str]):
-    """The current profile as an absolute-current function and its step times."""
+    """The current schedule in absolute amperes and its change times: a schedule
+    (:mod:`hydropump_sim.schedule`), in fractions of displacement unless it says its unit."""
     where = 'experiment.current'
-    if not isinstance(block, Mapping) or len(block) != 1 or \
-            next(iter(block)) not in ('step', 'staircase'):
-        errors.append(f'{where}: expected one of step: {{from, to, at}} or '
-                      'staircase: {levels, dwell} (displacement fractions 0..1)')
+    cur = parse_schedule(block, where, errors, units=CURRENT_UNITS, unit='fraction',
+                         time_sign='>= 0')
+    if cur is None:
         return None, ()
-    kind, body = next(iter(block.items()))
-    if not isinstance(body, Mapping):
-        errors.append(f'{where}.{kind}: expected a mapping')
+    late = late_changes(cur, duration, where)
+    lo, hi = {'fraction': (0.0, 1.0), 'percent': (0.0, 100.0)}.get(cur.unit, plant.I_limits)
+    amp = abs(cur.sine[0])
+    bad = [v for v in cur.levels if not lo - 1e-12 <= v - amp <= v + amp <= hi + 1e-12]
+    if late or bad:
+        unit = ' A' if cur.unit == 'A' else f' ({cur.unit} of displacement)'
+        errors.extend(late + [f'{where}: level {fmt(v)} outside {fmt(lo)}..{fmt(hi)}{unit}'
+                              for v in bad[:1]])
         return None, ()
-    if kind == 'step':
-        bad = set(body) - {'from', 'to', 'at'}
-        if bad:
-            errors.append(f'{where}.step: unknown key(s) {", ".join(sorted(map(str, bad)))} '
-                          '(use from, to, at)')
-        levels = [check_number(body.get(k), f'{where}.step.{k}', errors) for k in ('from', 'to')]
-        at = check_number(body.get('at'), f'{where}.step.at', errors, sign='> 0')
-        if at is not None and at >= duration:
-            errors.append(f'{where}.step.at = {fmt(at)} s: not before the end '
-                          f'({fmt(duration)} s)')
-        times = [0.0, at]
-    else:
-        bad = set(body) - {'levels', 'dwell'}
-        if bad:
-            errors.append(f'{where}.staircase: unknown key(s) '
-                          f'{", ".join(sorted(map(str, bad)))} (use levels, dwell)')
-        raw = body.get('levels')
-        if not isinstance(raw, list) or len(raw) < 2:
-            errors.append(f'{where}.staircase.levels: expected a list of 2 or more fractions')
-            return None, ()
-        levels = [check_number(v, f'{where}.staircase.levels[{i}]', errors)
-                  for i, v in enumerate(raw)]
-        dwell = check_number(body.get('dwell'), f'{where}.staircase.dwell', errors, sign='> 0')
-        times = [k * dwell for k in range(len(levels))] if dwell else [None]
-        if dwell and times[-1] >= duration:
-            errors.append(f'{where}.staircase: the last level starts at {fmt(times[-1])} s, '
-                          f'not before the end ({fmt(duration)} s)')
-    if any(v is None for v in levels) or any(t is None for t in times):
-        return None, ()
-    for v in levels:
-        if not 0.0 <= v <= 1.0:
-            errors.append(f'{where}: level {fmt(v)} outside 0..1 (displacement fraction)')
-            return None, ()
-    lo, hi = plant.current_range
-    amps = [lo + (hi - lo) * v for v in levels]
-    return Steps(tuple(times), tuple(amps)), tuple(times[1:])
+    return cur.in_amperes(plant), cur.change_times
 
 
 def _experiment(doc: Any, base: Path, plant: Params | None, errors: list[str]):
@@ -276,7 +234,7 @@ def _experiment(doc: Any, base: Path, plant: Params | None, errors: list[str]):
             duration, model, dt_out, scen_plant = sc.duration, sc.model, sc.dt_out, sc.params
             cur = inputs.get('current')
             if cur is not None and cur.kind == 'steps':
-                step_times = tuple(pt[0] for pt in cur.points[1:])
+                step_times = cur.change_times
     if 'duration' in doc:
         duration = check_number(doc['duration'], 'experiment.duration', errors, sign='> 0')
     elif duration is None:
