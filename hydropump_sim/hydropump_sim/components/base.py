@@ -28,7 +28,7 @@ one). It declares, as class attributes,
 
 and may override the methods below: its states (which can depend on its parameters, e.g. a
 lag that is off), the volume it adds to a port's node, a pressure it fixes, its start
-state. The circuit compiler (``hydropump_sim/circuit.py``) lays out the states, the inputs
+state. The circuit compiler (``hydropump_sim/circuit/``) lays out the states, the inputs
 and the signals of every component, and generates one compiled ``evaluate`` that calls each
 kernel with its slices, then applies continuity (eqs. 3 and 9) to every node with a volume.
 
