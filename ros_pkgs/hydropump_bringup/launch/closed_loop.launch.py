@@ -54,51 +54,29 @@ ARGUMENTS = [
 
 
 def _nodes(context):
-    """The three nodes, from the launch arguments' values (empty ones are left to the nodes'
-    own defaults)."""
+    """The graph's nodes (``hydropump_ros.command_line.graph_nodes``, the one description
+    ``hydropump-graph`` starts too) from the launch arguments' values; empty ones are left
+    to the nodes' own defaults."""
+    from hydropump_ros.command_line import graph_nodes
     a = {name: context.perform_substitution(LaunchConfiguration(name))
          for name, _, _ in ARGUMENTS}
 
     def flag(name):
         return a[name].strip().lower() == 'true'
 
-    common = {'namespace': a['namespace'], 'output': 'screen',
-              'ros_arguments': ['--log-level', a['log_level']]}
-    sim_time = {'use_sim_time': flag('use_sim_time')}
-    sim = {'lock_step': flag('lock_step'), 'real_time_factor': float(a['real_time_factor']),
-           'start_paused': flag('start_paused')}
-    if a['scenario_file']:
-        sim['scenario_file'] = a['scenario_file']
-    if a['circuit_file']:
-        sim['circuit_file'] = a['circuit_file']
-    rec = {'compression': a['compression']}
-    if a['bag']:
-        rec['output'] = a['bag']
-    if a['topics'].strip():
-        rec['topics'] = [t.strip() for t in a['topics'].split(',') if t.strip()]
-    elif a['circuit_file']:
-        # The suite's topics and what the circuit adds (ls_pressure, loads/<name>/...).
-        from hydropump_sim.measure import recorded_topics
-        rec['topics'] = recorded_topics(a['circuit_file'])
-    nodes = [
-        Node(package='hydropump_ros', executable='simulator', name='simulator', **common,
-             parameters=[a['params_file'], a['sensor_profile'], sim_time, sim]),
-        LifecycleNode(package='hydropump_ros', executable='controller', name='controller',
-                      **common, parameters=[sim_time, {
-                          'config_file': a['controller_params'],
-                          'autostart': flag('autostart'),
-                          # Lock-step: a simulation held back by a slow peer is no fault.
-                          'watchdog.simulation_time': flag('lock_step')}]),
-    ]
-    if flag('record'):
-        nodes.append(Node(package='hydropump_ros', executable='recorder', name='recorder',
-                          **common, parameters=[sim_time, rec]))
-    if flag('foxglove'):
-        # Its default topics and discovery take the circuit's topics as they appear.
-        nodes.append(Node(package='hydropump_ros', executable='foxglove', name='foxglove',
-                          **common, parameters=[sim_time,
-                                                {'port': int(a['foxglove_port'])}]))
-    return nodes
+    nodes = graph_nodes(
+        params_file=a['params_file'], sensor_profile=a['sensor_profile'] or None,
+        circuit_file=a['circuit_file'] or None, scenario_file=a['scenario_file'] or None,
+        controller_params=a['controller_params'] or None,
+        use_sim_time=flag('use_sim_time'), lock_step=flag('lock_step'),
+        real_time_factor=float(a['real_time_factor']), start_paused=flag('start_paused'),
+        autostart=flag('autostart'), record=flag('record'), topics=a['topics'].split(','),
+        bag=a['bag'] or None, compression=a['compression'],
+        foxglove_port=int(a['foxglove_port']) if flag('foxglove') else None)
+    return [(LifecycleNode if n.lifecycle else Node)(
+        package='hydropump_ros', executable=n.name, name=n.name, namespace=a['namespace'],
+        output='screen', ros_arguments=['--log-level', a['log_level']],
+        parameters=[*n.params_files, n.params]) for n in nodes]
 
 
 def generate_launch_description():

@@ -25,43 +25,24 @@ from hydropump_sim.errors import HydropumpError
 from hydropump_sim.params import default_params_path
 from hydropump_sim.schema import spec_map
 
-from .command_line import node_command, NODES
+from .command_line import graph_nodes, NODES
 
 #: The foxglove node's address parameters (their defaults and range: one source of truth).
 FOXGLOVE = spec_map(FoxgloveConfig)
 
 
 def graph_commands(args) -> dict[str, list[str]]:
-    """The node command lines, as the launch file builds them."""
-    sim = {'use_sim_time': args.use_sim_time, 'lock_step': args.lock_step,
-           'real_time_factor': args.real_time_factor, 'start_paused': args.start_paused}
-    if args.scenario_file:
-        sim['scenario_file'] = args.scenario_file
-    if args.circuit_file:
-        sim['circuit_file'] = args.circuit_file
-    # Lock-step: a simulation held back by a slow peer is no fault of the measurements.
-    ctrl = {'use_sim_time': args.use_sim_time, 'autostart': not args.no_autostart,
-            'watchdog.simulation_time': args.lock_step}
-    if args.controller_params:
-        ctrl['config_file'] = args.controller_params
-    rec = {'use_sim_time': args.use_sim_time, 'compression': args.compression}
-    if args.bag:
-        rec['output'] = args.bag
-    topics = args.topics.split(',') if args.topics else None
-    if not topics and args.circuit_file:
-        from hydropump_sim.measure import recorded_topics
-        topics = recorded_topics(args.circuit_file)
-    if topics:
-        rec['topics'] = topics
-    params = {'simulator': sim, 'controller': ctrl, 'recorder': rec}
-    if args.foxglove is not None:
-        # Its default topics, and discovery, take what a circuit adds as it appears.
-        params['foxglove'] = {'use_sim_time': args.use_sim_time, 'port': args.foxglove}
-    files = {'simulator': [args.params_file, *([args.sensor_profile] if args.sensor_profile
-                                               else [])]}
-    return {k: node_command(k, v, namespace=args.namespace, log_level=args.log_level,
-                            params_files=files.get(k, ())) for k, v in params.items()
-            if k not in (args.without or [])}
+    """The node command lines, from the graph the launch file starts."""
+    nodes = graph_nodes(
+        params_file=args.params_file, sensor_profile=args.sensor_profile,
+        circuit_file=args.circuit_file, scenario_file=args.scenario_file,
+        controller_params=args.controller_params, use_sim_time=args.use_sim_time,
+        lock_step=args.lock_step, real_time_factor=args.real_time_factor,
+        start_paused=args.start_paused, autostart=not args.no_autostart,
+        topics=args.topics.split(',') if args.topics else (), bag=args.bag,
+        compression=args.compression, foxglove_port=args.foxglove)
+    return {n.name: n.command(args.namespace, args.log_level) for n in nodes
+            if n.name not in (args.without or [])}
 
 
 def build_parser() -> argparse.ArgumentParser:
