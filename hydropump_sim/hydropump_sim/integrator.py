@@ -431,6 +431,8 @@ def run_dense(m, X0, t0, dt, U, P, rtol, h_min, max_steps, decim, Y, X, stats, m
     from the method's dense output. Where the solution is smooth, a step spans many
     outputs; ``max_steps`` bounds the steps per increment on average. Same arguments and
     returns as :func:`run`."""
+    # A compiled loop (numba): its stages share a dozen local arrays, and splitting it would
+    # pass them through calls in the innermost loop; long on purpose.
     n_inc = U.shape[0]
     rows, n = X0.shape
     ny = Y.shape[2]

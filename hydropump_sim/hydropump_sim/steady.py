@@ -62,49 +62,73 @@ def equilibrium(model: Model, u=None, *, x0=None, tol: float = 1.0e-9,
     if u is None or isinstance(u, Mapping):
         u = model.input_vector(u)
     u = np.asarray(u, dtype=float)
-    p = model.p_steady
-    scale = model.state_scale
-    free = ~model.integrating
-    dx = np.empty(model.n_states)
-    y = np.empty(model.n_signals)
+    search = _Search(model, u, tol, accept)
+    starts = [np.array(x0, dtype=float)] if x0 is not None else model.start_states(u)
+    x, stopped = search.from_starts(starts, horizon, time_budget)
+    x = search.onto_stops(x)
+    if strict and not search.good(x, accept):
+        why = model.unphysical(x, u) or (
+            f'the state does not settle (scaled residual {search.worst(x):.2e} above '
+            f'{accept:.0e}): ' + _describe(model, x, u, search.p))
+        raise TrimError(f'{model.name}: no steady state found at '
+                        f'{_inputs_text(model, u)}: {why}'
+                        + (f'; {stopped}' if stopped else ''))
+    return SteadyState(model, x, u, model.rhs(0.0, x, u)[1], search.settled(x))
 
-    def rates(xv):
-        model.evaluate(0.0, xv, u, p, dx, y)
-        return dx
 
-    def worst(xv):
-        return float(np.max(np.abs(rates(xv)[free] * 1.0e-3 / scale[free]), initial=0.0))
+class _Search:
+    """One search of :func:`equilibrium`: the model at held inputs, the states that rest
+    (``free``: all but the integrating ones, and those pinned on a stop), and the basis of
+    the fast modes while a quasi-steady state is judged."""
 
-    def polish(xv):
+    def __init__(self, model: Model, u: np.ndarray, tol: float, accept: float):
+        self.model, self.u, self.tol, self.accept = model, u, tol, accept
+        self.p = model.p_steady
+        self.scale = model.state_scale
+        self.free = ~model.integrating
+        self.basis = None
+        self._dx = np.empty(model.n_states)
+        self._y = np.empty(model.n_signals)
+
+    def rates(self, xv):
+        self.model.evaluate(0.0, xv, self.u, self.p, self._dx, self._y)
+        return self._dx
+
+    def worst(self, xv) -> float:
+        """The largest scaled rate of a free state over a 1 ms horizon."""
+        free, scale = self.free, self.scale
+        return float(np.max(np.abs(self.rates(xv)[free] * 1.0e-3 / scale[free]), initial=0.0))
+
+    def polish(self, xv):
         # Newton's method (Powell's hybrid), again from where it stopped while it gains
         # (nearly sealed volumes make the Jacobian ill-conditioned: their leakages are
         # 1e-6 of an open passage's), then Levenberg-Marquardt.
+        free, scale = self.free, self.scale
         for method in ('hybr', 'hybr', 'hybr', 'lm'):
-            if worst(xv) <= tol:
+            if self.worst(xv) <= self.tol:
                 break
 
             def resid(z, xv=xv):
                 xt = xv.copy()
                 xt[free] = z * scale[free]
-                return rates(xt)[free] * 1.0e-3 / scale[free]
+                return self.rates(xt)[free] * 1.0e-3 / scale[free]
             sol = optimize.root(resid, xv[free] / scale[free], method=method,
                                 options={'xtol': 1e-13})
             out = xv.copy()
             out[free] = sol.x * scale[free]
-            if not (np.all(np.isfinite(out)) and worst(out) < worst(xv)):
+            if not (np.all(np.isfinite(out)) and self.worst(out) < self.worst(xv)):
                 continue
             xv = out
         return xv
 
-    fast = {'basis': None}
-    stopped = ''
-
-    def quasi(xv):
+    def quasi(self, xv):
         """The quasi-steady state from ``xv``: modes slower than :data:`SLOW` (a volume
         that only leakage reaches) keep their start, the others rest (their rates, in the
         real Schur basis that orders the modes, are zero). ``None`` without slow modes."""
-        sf = scale[free]
-        A = model.jacobian(0.0, xv, u, p)[np.ix_(free, free)] * sf[None, :] / sf[:, None]
+        free = self.free
+        sf = self.scale[free]
+        A = self.model.jacobian(0.0, xv, self.u, self.p)[np.ix_(free, free)] \
+            * sf[None, :] / sf[:, None]
         if not np.all(np.isfinite(A)):
             return None
         T, Qs, k = linalg.schur(A, output='real',
@@ -117,65 +141,74 @@ def equilibrium(model: Model, u=None, *, x0=None, tol: float = 1.0e-9,
         def F(z):
             xt = xv.copy()
             xt[free] = z * sf
-            return np.concatenate([Qf.T @ (rates(xt)[free] / sf), Qslow.T @ (z - z0)])
+            return np.concatenate([Qf.T @ (self.rates(xt)[free] / sf), Qslow.T @ (z - z0)])
         sol = optimize.root(F, z0, method='hybr', options={'xtol': 1e-13})
         out = xv.copy()
         out[free] = sol.x * sf
-        fast['basis'] = Qf
+        self.basis = Qf
         return out if np.all(np.isfinite(out)) else None
 
-    def settled(xv):
+    def settled(self, xv) -> float:
         """The scaled residual of the modes that rest (all, or the fast ones)."""
-        Qf = fast['basis']
-        if Qf is None:
-            return worst(xv)
-        r = Qf @ (Qf.T @ (rates(xv)[free] / scale[free]))
+        if self.basis is None:
+            return self.worst(xv)
+        Qf, free = self.basis, self.free
+        r = Qf @ (Qf.T @ (self.rates(xv)[free] / self.scale[free]))
         return float(np.max(np.abs(r)) * 1.0e-3)
 
-    def good(xv, level):
-        return model.unphysical(xv, u) is None and settled(xv) <= level
+    def good(self, xv, level: float) -> bool:
+        return self.model.unphysical(xv, self.u) is None and self.settled(xv) <= level
 
-    starts = [np.array(x0, dtype=float)] if x0 is not None else model.start_states(u)
-    x = starts[0]
-    for cand in starts:
-        xp = polish(cand) if model.unphysical(cand, u) is None else cand
-        if good(xp, max(tol, 1.0e-7)):
-            x = xp
-            break
-    else:
-        xq = quasi(polish(starts[0])) if model.unphysical(starts[0], u) is None else None
-        if xq is not None and good(xq, accept):
-            x = xq
-        else:
-            fast['basis'] = None
-            start = model.clip_start(starts[0]) if hasattr(model, 'clip_start') \
-                else starts[0]
-            found = {}
+    def _polished(self, xv):
+        """``xv`` polished if the model can hold it (else as it is)."""
+        return self.polish(xv) if self.model.unphysical(xv, self.u) is None else xv
 
-            def done(xm, k, found=found):
-                # Settled, or (every second of the march) at rest but for its slow modes.
-                if worst(xm) < 1.0e-9:
+    def from_starts(self, starts: list, horizon: float, time_budget: float
+                    ) -> tuple[np.ndarray, str]:
+        """The first start that polishes to rest; else the first's quasi-steady state; else
+        a march of the dynamics from it, polished. Returns the state and why a march
+        stopped early (``''``)."""
+        tight = max(self.tol, 1.0e-7)
+        for cand in starts:
+            xp = self._polished(cand)
+            if self.good(xp, tight):
+                return xp, ''
+        if self.model.unphysical(starts[0], self.u) is None:
+            xq = self.quasi(self.polish(starts[0]))
+            if xq is not None and self.good(xq, self.accept):
+                return xq, ''
+        self.basis = None
+        model = self.model
+        start = model.clip_start(starts[0]) if hasattr(model, 'clip_start') else starts[0]
+        found = {}
+
+        def done(xm, k):
+            # Settled, or (every second of the march) at rest but for its slow modes.
+            if self.worst(xm) < 1.0e-9:
+                return True
+            if k % 5 == 4:
+                xq = self.quasi(self.polish(xm))
+                if xq is not None and self.good(xq, self.accept):
+                    found['x'] = xq
                     return True
-                if k % 5 == 4:
-                    xq = quasi(polish(xm))
-                    if xq is not None and good(xq, accept):
-                        found['x'] = xq
-                        return True
-                    fast['basis'] = None
-                return False
-            marched, stopped = _march(model, start, u, p, horizon, time_budget, done)
-            if 'x' in found:
-                x = found['x']
-            else:
-                xp = polish(marched)
-                x = xp if good(xp, max(tol, 1.0e-7)) or worst(xp) < worst(marched) \
-                    else marched
-    pinned = _on_stops(model, x, rates(x)) & ~free
-    if pinned.any():
-        # A piston pressed on its end stop is still: its position joins the states that
-        # rest, where the stop's force balances the push.
-        free = free | pinned
-        fast['basis'] = None
+                self.basis = None
+            return False
+        marched, stopped = _march(model, start, self.u, self.p, horizon, time_budget, done)
+        if 'x' in found:
+            return found['x'], stopped
+        xp = self.polish(marched)
+        return (xp if self.good(xp, tight) or self.worst(xp) < self.worst(marched)
+                else marched), stopped
+
+    def onto_stops(self, x):
+        """``x`` with every integrating state pressed on an end stop at rest too: its
+        position joins the states that rest, where the stop's force balances the push."""
+        model, scale = self.model, self.scale
+        pinned = _on_stops(model, x, self.rates(x)) & ~self.free
+        if not pinned.any():
+            return x
+        self.free = self.free | pinned
+        self.basis = None
         # Start just inside the stop, where its stiffness is felt (Newton stalls on the
         # contact's edge, where the stop's force does not yet depend on the position).
         x = x.copy()
@@ -184,28 +217,19 @@ def equilibrium(model: Model, u=None, *, x0=None, tol: float = 1.0e-9,
         lo = pinned & ~hi
         x[lo] = np.minimum(x[lo], model.state_stops[lo, 0] - 1.0e-6 * scale[lo])
         # ... and stop what drives it (its velocity: one Newton step on its own rate).
-        J = model.jacobian(0.0, x, u, p)
-        r = rates(x).copy()
+        J = model.jacobian(0.0, x, self.u, self.p)
+        r = self.rates(x).copy()
         for k in np.flatnonzero(pinned):
             row = np.abs(J[k]) * scale
             row[k] = 0.0
             j = int(np.argmax(row))
             if J[k, j] != 0.0:
                 x[j] -= r[k] / J[k, j]
-        xp = polish(x)
-        if not good(xp, max(tol, 1.0e-7)):
-            xq = quasi(xp)
-            xp = xq if xq is not None and good(xq, accept) else xp
-        x = xp
-    if strict and not good(x, accept):
-        why = model.unphysical(x, u) or (
-            f'the state does not settle (scaled residual {worst(x):.2e} above '
-            f'{accept:.0e}): ' + _describe(model, x, u, p))
-        raise TrimError(f'{model.name}: no steady state found at '
-                        f'{_inputs_text(model, u)}: {why}'
-                        + (f'; {stopped}' if stopped else ''))
-    r = settled(x)
-    return SteadyState(model, x, u, model.rhs(0.0, x, u)[1], r)
+        xp = self.polish(x)
+        if not self.good(xp, max(self.tol, 1.0e-7)):
+            xq = self.quasi(xp)
+            xp = xq if xq is not None and self.good(xq, self.accept) else xp
+        return xp
 
 
 def _on_stops(model: Model, x: np.ndarray, dx: np.ndarray) -> np.ndarray:

@@ -369,3 +369,39 @@ def test_input_schedules_have_one_parser(tmp_path):
     for reads in ("raw['dwell'], raw.get('levels')", "'ramp' in raw or 'steps' in raw"):
         probe.write_text(f'def f(raw):\n    return {reads}\n')
         assert _schedule_reads(probe), reads
+
+
+#: The longest a function of the pure packages may be (its code, the docstring left out)
+#: without a comment saying why it is long ("long on purpose").
+LONG_FUNCTION = 80
+
+
+def _long_functions(path: Path) -> list[str]:
+    lines = path.read_text().splitlines()
+    out = []
+    for fn in ast.walk(ast.parse('\n'.join(lines))):
+        if not isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            continue
+        body = fn.body
+        doc = isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant) \
+            and isinstance(body[0].value.value, str) and len(body) > 1
+        first = body[1] if doc else body[0]
+        code = lines[first.lineno - 1:fn.end_lineno]
+        whole = lines[fn.lineno - 1:fn.end_lineno]
+        if len(code) > LONG_FUNCTION and not any('long on purpose' in ln for ln in whole):
+            out.append(f'{path}:{fn.lineno} {fn.name}: {len(code)} lines')
+    return out
+
+
+def test_long_functions_of_the_pure_packages_say_why(tmp_path):
+    """A function of more than LONG_FUNCTION lines in hydropump_sim or hydropump_ctrl is
+    split by concern, or says in a comment why it is one (a compiled loop, one pass along a
+    hydraulic path)."""
+    found = [hit for name in ('hydropump_sim', 'hydropump_ctrl')
+             for path in sorted(PACKAGES[name].rglob('*.py')) for hit in _long_functions(path)]
+    assert not found, 'long functions without a reason:\n' + '\n'.join(found)
+    probe = tmp_path / 'probe.py'
+    probe.write_text('def f():\n    """Doc."""\n' + '    x = 1\n' * (LONG_FUNCTION + 1))
+    assert _long_functions(probe)
+    probe.write_text('def f():\n    # long on purpose\n' + '    x = 1\n' * LONG_FUNCTION)
+    assert not _long_functions(probe)

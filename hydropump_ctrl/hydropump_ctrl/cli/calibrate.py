@@ -303,6 +303,8 @@ def _single(args) -> int:
 def _fleet(args) -> int:
     """``calibrate --fleet FOLDER``: every pump of the folder, one task each (see the
     module)."""
+    # The command's steps in the order a user sees them (checks, tasks, progress, report):
+    # long on purpose, each step a few lines that say what the user is told.
     from ..ident.calibrate import (
         CalibrationError,
         check_free,

@@ -67,6 +67,7 @@ def design_report(cfg, params, sources: dict, lines_of: dict | None = None) -> s
     says where each model number came from. Against compensated loads the margin loop is
     judged on the modelled line and on each line capacitance of ``lines_of`` (label ->
     m^3/Pa: the circuit's line in other states)."""
+    # The report's sections in reading order, each a few lines of text: long on purpose.
     from ..control import design as dz
     T, m, e = cfg.period, cfg.model, cfg.emc
     g = dz.emc_gains(cfg)

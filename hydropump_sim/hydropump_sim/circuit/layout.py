@@ -3,6 +3,8 @@ sparsity and colouring) and generating the source of its ``evaluate`` (see the p
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 
 from .. import energy
@@ -15,113 +17,31 @@ from .model import Circuit, CircuitError, FLUID_KEYS, N_FLUID, NODE_PREFIX, Part
 def lay_out(comps: list[Component], composites: dict[str, Expansion], fluid: Fluid,
             source: str, name: str, errors: list[str], meters: tuple[str, ...] = ()
             ) -> Circuit:
-    nodes: list[str] = []
-    for comp in comps:
-        for spec in comp.PORTS:
-            for node in comp.ports.get(spec.name, []):
-                if node not in nodes:
-                    nodes.append(node)
-    index = {n: i for i, n in enumerate(nodes)}
-    # Who fixes a node, and the volume at each.
-    fixed: dict[str, tuple[str, str, str]] = {}
-    volume: dict[str, float] = {n: 0.0 for n in nodes}
-    for comp in comps:
-        fx = comp.fixed_pressure()
-        if fx is not None:
-            node = comp.ports[fx[0]][0]
-            if node in fixed:
-                errors.append(f'node {node}: its pressure is fixed by both {fixed[node][0]} and '
-                              f'{comp.name}; keep one')
-            else:
-                fixed[node] = (comp.name, fx[1], fx[2])
-        for port, v in comp.volumes().items():
-            for node in comp.ports.get(port, []):
-                volume[node] += v
-    users: dict[str, list[str]] = {n: [] for n in nodes}
-    for comp in comps:
-        for spec in comp.PORTS:
-            for node in comp.ports.get(spec.name, []):
-                users[node].append(f'{comp.name}.{spec.name}')
-    for node in nodes:
-        if node not in fixed and volume[node] <= 0.0:
-            errors.append(f'node {node} ({", ".join(users[node])}): no volume: its pressure '
-                          'needs one (a volume component, or a chamber of a cylinder or '
-                          'motor) or a component that fixes it (a tank)')
-    errors += _return_paths(comps, nodes, fixed, users)
-    errors += _pressure_limits(comps)
+    """The checked components placed in one model: the nodes, then every vector laid out
+    (:func:`_place`), the meters, the Jacobian's sparsity and colouring, and the source of
+    ``evaluate``; :class:`CircuitError` with every problem of the nodes."""
+    nodes, fixed, volume = _node_table(comps, errors)
     if errors:
         raise CircuitError(errors, source)
-    # States: components', then one pressure per node with a volume.
-    states, units, scales, integ, stops = [], [], [], [], []
-    parts: list[Part] = []
-    inputs, in_units, in_ranges, u0 = [], [], [], []
-    signals = ([f'{NODE_PREFIX}{n}' for n in nodes] + [f'{NODE_PREFIX}{n}.inflow' for n in nodes]
-               + [f'{NODE_PREFIX}{n}.volume' for n in nodes])
-    sig_units = ['Pa'] * len(nodes) + ['m^3/s'] * len(nodes) + ['m^3'] * len(nodes)
-    p: list[float] = [float(getattr(fluid, k)) for k in FLUID_KEYS]
-    p += [volume[n] if n not in fixed else 0.0 for n in nodes]
-    for n, (cname, how, key) in fixed.items():
-        if how == 'param':
-            comp = next(c for c in comps if c.name == cname)
-            p[N_FLUID + index[n]] = float(getattr(comp.params, key))
-    dither = 0.0
-    for comp in comps:
-        sts = comp.states()
-        x0 = len(states)
-        for s in sts:
-            states.append(f'{comp.name}.{s.name}')
-            units.append(s.unit)
-            scales.append(s.scale)
-            integ.append(s.integrating)
-            stops.append(s.stops or (np.nan, np.nan))
-        k0 = len(inputs)
-        for s in comp.INPUTS:
-            inputs.append(f'{comp.name}.{s.name}')
-            in_units.append(s.unit)
-            in_ranges.append((s.lo, s.hi))
-            u0.append(comp.input_default(s))
-        y0 = len(signals)
-        for s in comp.SIGNALS:
-            signals.append(f'{comp.name}.{s.name}')
-            sig_units.append(s.unit)
-        block, used = _port_block(comp, index)
-        p0 = len(p)
-        p += block + [float(v) for v in comp.pack()]
-        parts.append(Part(comp, slice(x0, len(states)), slice(k0, len(inputs)),
-                          slice(y0, len(signals)), slice(p0, len(p)), used))
-        if comp.dither_frequency() > 0.0:
-            dither = max(dither, comp.dither_frequency())
-    # The energy account's sums after every component's signals (hydropump_sim.energy).
-    power = energy.power_signals(parts, nodes, fixed)
-    power_y0 = len(signals)
-    signals += power.names()
-    sig_units += ['W'] * len(power.names())
+    index = {n: i for i, n in enumerate(nodes)}
+    v = _place(comps, nodes, index, fixed, volume, fluid)
     node_states = {}
     for n in nodes:
         if n not in fixed:
-            node_states[n] = len(states)
-            states.append(f'{NODE_PREFIX}{n}')
-            units.append('Pa')
-            scales.append(1.0e6)
-            integ.append(False)
-            stops.append((np.nan, np.nan))
+            node_states[n] = len(v.states)
+            v.add_state(f'{NODE_PREFIX}{n}', 'Pa', 1.0e6, False, None)
     for m in meters:
-        states.append(f'meter:{m}')
-        units.append('m^3')
-        scales.append(1.0)
-        integ.append(True)
-        stops.append((np.nan, np.nan))
+        v.add_state(f'meter:{m}', 'm^3', 1.0, True, None)
     circuit = Circuit(
-        name=name, source=source, fluid=fluid, parts=parts, composites=composites,
-        nodes=nodes, fixed=fixed, volume={n: v for n, v in volume.items() if n not in fixed},
-        states=states, state_units=units, state_scale=np.array(scales, dtype=float),
-        integrating=np.array(integ, dtype=bool),
-        state_stops=np.array(stops, dtype=float).reshape(-1, 2), inputs=inputs,
-        input_units=in_units,
-        input_ranges=in_ranges, u0=np.array(u0, dtype=float), signals=signals,
-        signal_units=sig_units, p=np.array(p, dtype=float),
-        pattern=np.zeros((0, 0), bool), colors=np.zeros(0, np.int64), dither=dither,
-        code='', power=power, power_y0=power_y0)
+        name=name, source=source, fluid=fluid, parts=v.parts, composites=composites,
+        nodes=nodes, fixed=fixed, volume={n: vol for n, vol in volume.items() if n not in fixed},
+        states=v.states, state_units=v.units, state_scale=np.array(v.scales, dtype=float),
+        integrating=np.array(v.integ, dtype=bool),
+        state_stops=np.array(v.stops, dtype=float).reshape(-1, 2), inputs=v.inputs,
+        input_units=v.in_units, input_ranges=v.in_ranges, u0=np.array(v.u0, dtype=float),
+        signals=v.signals, signal_units=v.sig_units, p=np.array(v.p, dtype=float),
+        pattern=np.zeros((0, 0), bool), colors=np.zeros(0, np.int64), dither=v.dither,
+        code='', power=v.power, power_y0=v.power_y0)
     circuit.meters = {}
     for m in meters:
         try:
@@ -138,6 +58,114 @@ def lay_out(comps: list[Component], composites: dict[str, Expansion], fluid: Flu
     circuit.colors = coloring(circuit.pattern)
     circuit.code = _generate(circuit, node_states, index)
     return circuit
+
+
+def _node_table(comps: list[Component], errors: list[str]
+                ) -> tuple[list[str], dict[str, tuple[str, str, str]], dict[str, float]]:
+    """The nodes in the order the ports name them, who fixes a node's pressure, and the
+    volume at each; a line in ``errors`` per node without a volume or a fixed pressure, two
+    fixing one, a node no flow can leave, a relief or a source above its limits."""
+    nodes: list[str] = []
+    users: dict[str, list[str]] = {}
+    for comp in comps:
+        for spec in comp.PORTS:
+            for node in comp.ports.get(spec.name, []):
+                if node not in nodes:
+                    nodes.append(node)
+                users.setdefault(node, []).append(f'{comp.name}.{spec.name}')
+    fixed: dict[str, tuple[str, str, str]] = {}
+    volume: dict[str, float] = {n: 0.0 for n in nodes}
+    for comp in comps:
+        fx = comp.fixed_pressure()
+        if fx is not None:
+            node = comp.ports[fx[0]][0]
+            if node in fixed:
+                errors.append(f'node {node}: its pressure is fixed by both {fixed[node][0]} and '
+                              f'{comp.name}; keep one')
+            else:
+                fixed[node] = (comp.name, fx[1], fx[2])
+        for port, v in comp.volumes().items():
+            for node in comp.ports.get(port, []):
+                volume[node] += v
+    for node in nodes:
+        if node not in fixed and volume[node] <= 0.0:
+            errors.append(f'node {node} ({", ".join(users[node])}): no volume: its pressure '
+                          'needs one (a volume component, or a chamber of a cylinder or '
+                          'motor) or a component that fixes it (a tank)')
+    errors += _return_paths(comps, nodes, fixed, users)
+    errors += _pressure_limits(comps)
+    return nodes, fixed, volume
+
+
+@dataclass
+class _Vectors:
+    """The vectors of a circuit as they are laid out: states, inputs, signals (names, units
+    and the rest), the parameters ``p``, the parts."""
+
+    states: list = field(default_factory=list)
+    units: list = field(default_factory=list)
+    scales: list = field(default_factory=list)
+    integ: list = field(default_factory=list)
+    stops: list = field(default_factory=list)
+    inputs: list = field(default_factory=list)
+    in_units: list = field(default_factory=list)
+    in_ranges: list = field(default_factory=list)
+    u0: list = field(default_factory=list)
+    signals: list = field(default_factory=list)
+    sig_units: list = field(default_factory=list)
+    p: list = field(default_factory=list)
+    parts: list = field(default_factory=list)
+    dither: float = 0.0
+    power: object = None
+    power_y0: int = 0
+
+    def add_state(self, name: str, unit: str, scale: float, integrating: bool, stops):
+        self.states.append(name)
+        self.units.append(unit)
+        self.scales.append(scale)
+        self.integ.append(integrating)
+        self.stops.append(stops or (np.nan, np.nan))
+
+
+def _place(comps: list[Component], nodes: list[str], index: dict[str, int], fixed: dict,
+           volume: dict[str, float], fluid: Fluid) -> _Vectors:
+    """Every component's states, inputs, signals and parameter block, in order, after the
+    nodes' signals (pressure, net inflow, volume) and the fluid's and nodes' parameters;
+    then the energy account's sums."""
+    v = _Vectors()
+    v.signals = ([f'{NODE_PREFIX}{n}' for n in nodes] + [f'{NODE_PREFIX}{n}.inflow' for n in nodes]
+                 + [f'{NODE_PREFIX}{n}.volume' for n in nodes])
+    v.sig_units = ['Pa'] * len(nodes) + ['m^3/s'] * len(nodes) + ['m^3'] * len(nodes)
+    v.p = [float(getattr(fluid, k)) for k in FLUID_KEYS]
+    v.p += [volume[n] if n not in fixed else 0.0 for n in nodes]
+    for n, (cname, how, key) in fixed.items():
+        if how == 'param':
+            comp = next(c for c in comps if c.name == cname)
+            v.p[N_FLUID + index[n]] = float(getattr(comp.params, key))
+    for comp in comps:
+        x0, k0, y0 = len(v.states), len(v.inputs), len(v.signals)
+        for s in comp.states():
+            v.add_state(f'{comp.name}.{s.name}', s.unit, s.scale, s.integrating, s.stops)
+        for s in comp.INPUTS:
+            v.inputs.append(f'{comp.name}.{s.name}')
+            v.in_units.append(s.unit)
+            v.in_ranges.append((s.lo, s.hi))
+            v.u0.append(comp.input_default(s))
+        for s in comp.SIGNALS:
+            v.signals.append(f'{comp.name}.{s.name}')
+            v.sig_units.append(s.unit)
+        block, used = _port_block(comp, index)
+        p0 = len(v.p)
+        v.p += block + [float(x) for x in comp.pack()]
+        v.parts.append(Part(comp, slice(x0, len(v.states)), slice(k0, len(v.inputs)),
+                            slice(y0, len(v.signals)), slice(p0, len(v.p)), used))
+        v.dither = max(v.dither, comp.dither_frequency())
+    # The energy account's sums after every component's signals (hydropump_sim.energy).
+    v.power = energy.power_signals(v.parts, nodes, fixed)
+    v.power_y0 = len(v.signals)
+    v.signals += v.power.names()
+    v.sig_units += ['W'] * len(v.power.names())
+    return v
 
 
 def _port_block(comp: Component, index: dict[str, int]) -> tuple[list[float], list[int]]:

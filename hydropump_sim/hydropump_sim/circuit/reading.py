@@ -102,6 +102,9 @@ def load_circuit(path: str | Path, sets: Mapping[str, Any] | None = None,
 def build_circuit(doc: Any, source: str, base: Path, sets: dict[str, Any],
                   plant_over: str | Path | Params | None = None,
                   compile: bool = True, meters: tuple[str, ...] = ()) -> Circuit:
+    """A circuit from its YAML form (see :func:`load_circuit`): the file's keys and names,
+    its plant and fluid, its components (composites expanded), laid out, its held inputs
+    set and its relief settings checked against what the sources can reach."""
     errors: list[str] = []
     if not isinstance(doc, Mapping) or not isinstance(doc.get('components'), Mapping) \
             or not doc['components']:
@@ -114,35 +117,71 @@ def build_circuit(doc: Any, source: str, base: Path, sets: dict[str, Any],
     if bad_names:  # nothing else is read under a name that is not an identifier
         raise CircuitError(bad_names, source)
     by_comp = _split_sets(sets)
-    plant = None
-    if isinstance(plant_over, Params):
-        plant = to_flat(plant_over)
-    elif plant_over is not None or doc.get('plant') is not None:
-        plant_path = Path(plant_over) if plant_over is not None else base / str(doc['plant'])
-        try:
-            plant = to_flat(load_params(plant_path))
-        except ParamError as exc:
-            raise CircuitError([f'plant: {plant_path}: {ln}' for ln in exc.lines],
-                               source) from None
-    # The fluid: the plant's, then the circuit file's, then --set fluid.*.
-    fluid_values = {k[len('fluid.'):]: v for k, v in (plant or {}).items()
-                    if k.startswith('fluid.')}
-    fluid_values.update(flatten(doc.get('fluid') or {}))
-    fluid_values.update(by_comp.pop('fluid', {}))
-    fluid = None
-    try:
-        fluid = build(Fluid, {k: _resolve(v, plant, f'fluid.{k}', errors)
-                              for k, v in fluid_values.items()}, source)
-    except ParamError as exc:
-        errors += [f'fluid.{ln}' for ln in exc.lines]
-    kinds = registry()
-    comps: list[Component] = []
-    composites: dict[str, Expansion] = {}
-    input_sets: dict[str, float] = {}
+    plant = _plant(doc, base, plant_over, source)
+    fluid = _fluid(doc, plant, by_comp.pop('fluid', {}), source, errors)
     for name in by_comp:
         if name not in doc['components']:
             errors.append(unknown(name, list(doc['components']) + ['fluid'], 'component')
                           + ' in a set value')
+    comps, composites, input_sets = _components(doc, plant, by_comp, fluid, errors)
+    if errors:
+        raise CircuitError(errors, source)
+    circuit = lay_out(comps, composites, fluid, source, doc.get('name') or Path(source).stem,
+                      errors, meters)
+    errors += _hold_inputs(circuit, input_sets)
+    cap = float(circuit.pressure_caps(circuit.u0[None])[0])
+    if np.isfinite(cap):
+        for pt in circuit.parts:
+            errors += pt.comp.cap_checks(cap)
+    if errors:
+        raise CircuitError(errors, source)
+    circuit.entries['__load__'] = load_circuit
+    circuit.entries['__sets__'] = dict(sets)
+    circuit.entries['__plant__'] = plant_over
+    circuit.entries['__meters__'] = meters
+    if compile:
+        circuit.module = compile_module(circuit.code)
+    return circuit
+
+
+def _plant(doc: Mapping, base: Path, plant_over: str | Path | Params | None, source: str
+           ) -> dict | None:
+    """The plant parameters by dotted name: ``plant_over``, else the file's ``plant:``."""
+    if isinstance(plant_over, Params):
+        return to_flat(plant_over)
+    if plant_over is None and doc.get('plant') is None:
+        return None
+    plant_path = Path(plant_over) if plant_over is not None else base / str(doc['plant'])
+    try:
+        return to_flat(load_params(plant_path))
+    except ParamError as exc:
+        raise CircuitError([f'plant: {plant_path}: {ln}' for ln in exc.lines],
+                           source) from None
+
+
+def _fluid(doc: Mapping, plant: dict | None, sets: dict[str, Any], source: str,
+           errors: list[str]) -> Fluid | None:
+    """The fluid: the plant's, then the circuit file's, then ``--set fluid.*``."""
+    values = {k[len('fluid.'):]: v for k, v in (plant or {}).items() if k.startswith('fluid.')}
+    values.update(flatten(doc.get('fluid') or {}))
+    values.update(sets)
+    try:
+        return build(Fluid, {k: _resolve(v, plant, f'fluid.{k}', errors)
+                             for k, v in values.items()}, source)
+    except ParamError as exc:
+        errors += [f'fluid.{ln}' for ln in exc.lines]
+        return None
+
+
+def _components(doc: Mapping, plant: dict | None, by_comp: dict, fluid: Fluid | None,
+                errors: list[str]) -> tuple[list[Component], dict[str, Expansion], dict]:
+    """The primitive components in file order, a composite's parts in its place; the
+    composites with their expansions; the inputs a set value holds (a composite's aliases
+    resolved)."""
+    kinds = registry()
+    comps: list[Component] = []
+    composites: dict[str, Expansion] = {}
+    input_sets: dict[str, float] = {}
     pending = [(str(name), entry, None) for name, entry in doc['components'].items()]
     while pending:
         name, entry, parent = pending.pop(0)
@@ -165,10 +204,13 @@ def build_circuit(doc: Any, source: str, base: Path, sets: dict[str, Any],
                 input_sets[target] = sub[alias]
         pending = [(part_name, {'type': kind, 'ports': ports, **values}, name)
                    for part_name, kind, values, ports in exp.parts] + pending
-    if errors:
-        raise CircuitError(errors, source)
-    circuit = lay_out(comps, composites, fluid, source, doc.get('name') or Path(source).stem,
-                      errors, meters)
+    return comps, composites, input_sets
+
+
+def _hold_inputs(circuit: Circuit, input_sets: dict[str, Any]) -> list[str]:
+    """Each set input held at its value in ``circuit.u0``; a line per unknown input or a
+    value outside its range."""
+    errors = []
     for name, value in input_sets.items():
         try:
             k = circuit.inputs.index(name)
@@ -183,19 +225,7 @@ def build_circuit(doc: Any, source: str, base: Path, sets: dict[str, Any],
                           f'{circuit.input_units[k]}{hint}')
             continue
         circuit.u0[k] = float(value)
-    cap = float(circuit.pressure_caps(circuit.u0[None])[0])
-    if np.isfinite(cap):
-        for pt in circuit.parts:
-            errors += pt.comp.cap_checks(cap)
-    if errors:
-        raise CircuitError(errors, source)
-    circuit.entries['__load__'] = load_circuit
-    circuit.entries['__sets__'] = dict(sets)
-    circuit.entries['__plant__'] = plant_over
-    circuit.entries['__meters__'] = meters
-    if compile:
-        circuit.module = compile_module(circuit.code)
-    return circuit
+    return errors
 
 
 def _make(name: str, entry: Any, kinds: dict, plant: dict | None, sets: dict[str, Any],

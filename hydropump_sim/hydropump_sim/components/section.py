@@ -122,6 +122,9 @@ class Section(Component):
         return spec_map(SectionOptions)
 
     def expand(self) -> Expansion:
+        # One pass along the section's hydraulic path, from the actuator's lines to the
+        # supply: each stage (brakes, hoses, compensator, valve, protection) connects to the
+        # node names the stage before it chose, so it stays one function (long on purpose).
         o, parts, n = self.params.options, self.params.parts, self.name
         supply, tank, load = (self.ports[k][0] for k in ('supply', 'tank', 'load'))
         act = o.actuator

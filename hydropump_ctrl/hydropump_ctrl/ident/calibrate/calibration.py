@@ -313,73 +313,17 @@ def calibrate(recordings: Sequence, base: Params, free: Sequence[str], *,
                    priors=priors, progress=progress)
     notes = [n for e in exps for n in e.notes]
     try:
-        try:
-            prob.evaluate(z0, search=True)
-            before = prob.predictions(z0)
-            r_start = prob.data_residuals(z0)
-            cost_start = float(np.sum(r_start ** 2) / max(r_start.size, 1))
-        except HydropumpError as exc:
-            raise CalibrationError(f'the start parameters do not simulate: {exc}') from None
-        tried = ['the start']
-        z_start = z0
-        if closed_form_start:
-            cand, why = start_values(base, free, exps)
-            if cand:
-                zc = coords.to_z(np.array([cand.get(n, v) for n, v in zip(free, theta0)]))
-                try:
-                    c0 = float(np.sum(prob.residuals(z0) ** 2))
-                    prob.evaluate(zc, search=True)
-                    c1 = float(np.sum(prob.residuals(zc) ** 2))
-                except HydropumpError:
-                    c1 = math.inf
-                if c1 < c0:
-                    z_start = zc
-                    tried = ['the closed-form start (' + ', '.join(why) + ')']
-                else:
-                    prob.evaluate(z0, search=True)
-        z_start = _from_zero(prob, z_start)
-        # A parameter no signal of any recording depends on cannot be informed.
-        Jp0, _ = prob.sensitivities(z_start)
-        dead = [n for j, n in enumerate(free) if not np.any(Jp0[:, j])]
-        if dead:
-            raise CalibrationError(
-                [f'{n} cannot be informed by these recordings: no measured signal depends on '
-                 'it in these runs (for instance a relief valve never reached, or a friction '
-                 'set to zero)' for n in dead])
-        start_nuis = dict(prob.nuis)
-        sol = _solve(prob, z_start, max_nfev)
-        if multistart and not prob.at_noise_level(sol.fun):
-            for f in (0.6, 1.6):
-                zs = coords.to_z(np.clip(theta0 * f, coords.lo, coords.hi))
-                try:
-                    prob.nuis = dict(start_nuis)
-                    prob.evaluate(zs, search=True)
-                    cand = _solve(prob, zs, max_nfev)
-                except HydropumpError:
-                    continue
-                tried.append(f'the start x {f:g}')
-                if cand.cost < sol.cost:
-                    sol = cand
-        if not np.isfinite(sol.cost) or not np.all(np.abs(sol.fun) < 1e6):
-            raise CalibrationError(f'the fit did not converge (tried from {", ".join(tried)}): '
-                                   'the model cannot follow the recordings from any start; '
-                                   'check the params file and the recorded signals')
+        z_start, tried, before, cost_start = _start(prob, base, free, exps, z0, theta0,
+                                                    closed_form_start)
+        _check_informed(prob, z_start, free)
+        sol, tried = _fit(prob, coords, theta0, z_start, tried, max_nfev, multistart)
         z = sol.x
         prob.evaluate(z, search=True)
         method = ('trust-region least squares (scipy) from ' + ', '.join(tried) + '; '
                   'sensitivities from copies of the plant stepped with the nominal run; '
                   'delays and offsets by variable projection')
-        Jr, J_prior = _projected(prob, z)
-        held = singular_directions(Jr.T @ Jr + J_prior.T @ J_prior)
+        z, Jr, J_prior, held = _hold_uninformed(prob, z0, z, len(free), max_nfev)
         if held.shape[1]:
-            # Only a direction no data inform at all is held, at the start's value.
-            basis = np.linalg.qr(np.column_stack([held, np.eye(len(free))]))[0][
-                :, held.shape[1]:len(free)]
-            z_ref = z0 - basis @ (basis.T @ z0) + basis @ (basis.T @ z)
-            sol = _solve(prob, z_ref, max_nfev, basis=basis, z_ref=z_ref)
-            z = sol.x
-            prob.evaluate(z, search=True)
-            Jr, J_prior = _projected(prob, z)
             method += '; a singular direction held at the start'
         r = prob.data_residuals(z)
         unc = analyse(Jr, r, free, prob.row_groups(), J_prior, held)
@@ -396,6 +340,91 @@ def calibrate(recordings: Sequence, base: Params, free: Sequence[str], *,
         return cal
     finally:
         engine.close()
+
+
+def _start(prob: Problem, base: Params, free: tuple, exps: list, z0: np.ndarray,
+           theta0: np.ndarray, closed_form: bool) -> tuple[np.ndarray, list[str], dict, float]:
+    """Where the fit starts: the params file's values, or the closed-form start values
+    where they fit better, moved off zero. Returns the start, what it is, the predictions
+    and the mean squared residual at the params file's values."""
+    try:
+        prob.evaluate(z0, search=True)
+        before = prob.predictions(z0)
+        r_start = prob.data_residuals(z0)
+        cost_start = float(np.sum(r_start ** 2) / max(r_start.size, 1))
+    except HydropumpError as exc:
+        raise CalibrationError(f'the start parameters do not simulate: {exc}') from None
+    tried = ['the start']
+    z_start = z0
+    if closed_form:
+        cand, why = start_values(base, free, exps)
+        if cand:
+            zc = prob.coords.to_z(np.array([cand.get(n, v) for n, v in zip(free, theta0)]))
+            try:
+                c0 = float(np.sum(prob.residuals(z0) ** 2))
+                prob.evaluate(zc, search=True)
+                c1 = float(np.sum(prob.residuals(zc) ** 2))
+            except HydropumpError:
+                c1 = math.inf
+            if c1 < c0:
+                z_start = zc
+                tried = ['the closed-form start (' + ', '.join(why) + ')']
+            else:
+                prob.evaluate(z0, search=True)
+    return _from_zero(prob, z_start), tried, before, cost_start
+
+
+def _check_informed(prob: Problem, z: np.ndarray, free: tuple) -> None:
+    """A parameter no signal of any recording depends on cannot be informed."""
+    Jp0, _ = prob.sensitivities(z)
+    dead = [n for j, n in enumerate(free) if not np.any(Jp0[:, j])]
+    if dead:
+        raise CalibrationError(
+            [f'{n} cannot be informed by these recordings: no measured signal depends on '
+             'it in these runs (for instance a relief valve never reached, or a friction '
+             'set to zero)' for n in dead])
+
+
+def _fit(prob: Problem, coords: Coordinates, theta0: np.ndarray, z_start: np.ndarray,
+         tried: list[str], max_nfev: int, multistart: bool):
+    """The least-squares fit from ``z_start``, and (with ``multistart``, where it stops
+    above the noise) from the start's values x 0.6 and x 1.6: the best, and every start
+    tried."""
+    start_nuis = dict(prob.nuis)
+    sol = _solve(prob, z_start, max_nfev)
+    if multistart and not prob.at_noise_level(sol.fun):
+        for f in (0.6, 1.6):
+            zs = coords.to_z(np.clip(theta0 * f, coords.lo, coords.hi))
+            try:
+                prob.nuis = dict(start_nuis)
+                prob.evaluate(zs, search=True)
+                cand = _solve(prob, zs, max_nfev)
+            except HydropumpError:
+                continue
+            tried.append(f'the start x {f:g}')
+            if cand.cost < sol.cost:
+                sol = cand
+    if not np.isfinite(sol.cost) or not np.all(np.abs(sol.fun) < 1e6):
+        raise CalibrationError(f'the fit did not converge (tried from {", ".join(tried)}): '
+                               'the model cannot follow the recordings from any start; '
+                               'check the params file and the recorded signals')
+    return sol, tried
+
+
+def _hold_uninformed(prob: Problem, z0: np.ndarray, z: np.ndarray, n: int, max_nfev: int):
+    """The fit at ``z`` with every direction no data inform held at the start's value (and
+    fitted again in the others): the parameters, the projected Jacobians and the held
+    directions."""
+    Jr, J_prior = _projected(prob, z)
+    held = singular_directions(Jr.T @ Jr + J_prior.T @ J_prior)
+    if held.shape[1]:
+        basis = np.linalg.qr(np.column_stack([held, np.eye(n)]))[0][:, held.shape[1]:n]
+        z_ref = z0 - basis @ (basis.T @ z0) + basis @ (basis.T @ z)
+        sol = _solve(prob, z_ref, max_nfev, basis=basis, z_ref=z_ref)
+        z = sol.x
+        prob.evaluate(z, search=True)
+        Jr, J_prior = _projected(prob, z)
+    return z, Jr, J_prior, held
 
 
 def _from_zero(prob: Problem, z: np.ndarray) -> np.ndarray:
@@ -452,6 +481,33 @@ def _result(prob, base, free, coords, theta0, z, unc, before, notes, recordings,
     params = params_with(base, free, theta)
     after = prob.predictions(z)
     nuis = prob.evaluate(z)[1]
+    estimates, flags = _estimates(prob, free, coords, theta, theta0, z, unc, model_se)
+    misfit = misfit_table(exps, after)
+    fits = _fits(exps, after)
+    flags += _fit_flags(prob, nuis, misfit, fits)
+    delays, offs = _nuisance_tables(prob, nuis)
+    r = prob.residuals(z)
+    dt = max(e.dt for e in exps)
+    return Calibration(
+        params=params, start=base, estimates=estimates, correlation=unc.correlation,
+        singular_values=unc.singular_values, weak=unc.weak, held=unc.held,
+        fit=fits, fit_before=_fits(exps, before), misfit=misfit,
+        delays=delays, offsets=offs, sigma={e.name: dict(e.sigma) for e in exps},
+        flags=flags, notes=notes, timing=timing_convention(delays, dt),
+        sources=[str(getattr(rec, 'source', '') or getattr(rec, 'name', ''))
+                 for rec in recordings],
+        free=free, tied=tied_values(params.flat(), free), priors=list(prob.priors),
+        method=method, n_simulations=prob.engine.n_trajectories,
+        wall_time=time.perf_counter() - t_wall,
+        cost=float(np.sum(r ** 2) / max(r.size, 1)), predictions=after,
+        predictions_before=before, experiments=exps, information=unc.information,
+        covariance=unc.covariance)
+
+
+def _estimates(prob, free, coords, theta, theta0, z, unc, model_se
+               ) -> tuple[list[ParameterEstimate], list[str]]:
+    """Each free parameter's estimate with its standard error, interval and verdict (on a
+    bound, held, weak and with what), and a flag per verdict."""
     flags: list[str] = []
     zlo, zhi = coords.bounds()
     dth = coords.dtheta_dz(theta)
@@ -499,6 +555,14 @@ def _result(prob, base, free, coords, theta0, z, unc, before, notes, recordings,
                                            float(model_se[j] * dth[j])))
         if reason:
             flags.append(f'{n}: {reason}')
+    return estimates, flags
+
+
+def _fit_flags(prob, nuis, misfit, fits) -> list[str]:
+    """A flag per delay on its bound, per signal not fitted to its noise, per fit below
+    zero."""
+    exps = prob.exps
+    flags: list[str] = []
     for (i, s), (d, _) in nuis.items():
         where = '' if i is None else exps[i].name + ': '
         if prob.fit_delays and d >= DELAY_MAX - 1e-6:
@@ -508,7 +572,6 @@ def _result(prob, base, free, coords, theta0, z, unc, before, notes, recordings,
             flags.append(f'{where}{s} leads the current by the most allowed ({-1e3 * d:.3g} '
                          f"ms, {LEAD_SAMPLES} samples): its stamps and the current's may be "
                          'further apart')
-    misfit = misfit_table(exps, after)
     for name, per in misfit.items():
         for s, m in per.items():
             if m['ratio'] > MISFIT_RATIO:
@@ -516,30 +579,13 @@ def _result(prob, base, free, coords, theta0, z, unc, before, notes, recordings,
                              f'{m["rms"]:.3g} against a noise of {m["noise"]:.3g} (SI), '
                              f'{m["ratio"]:.2g} x: the model leaves out something the data '
                              'have')
-    fits = _fits(exps, after)
     for name, per in fits.items():
         for s, v in per.items():
             if v is not None and v < 0.0:
                 flags.append(f'{name}: {s} fit {v:.4g} % is below zero: the model predicts it '
                              'worse than its mean (the units were checked: see the misfit '
                              'table and what the model may lack)')
-    delays, offs = _nuisance_tables(prob, nuis)
-    r = prob.residuals(z)
-    dt = max(e.dt for e in exps)
-    return Calibration(
-        params=params, start=base, estimates=estimates, correlation=unc.correlation,
-        singular_values=unc.singular_values, weak=unc.weak, held=unc.held,
-        fit=fits, fit_before=_fits(exps, before), misfit=misfit,
-        delays=delays, offsets=offs, sigma={e.name: dict(e.sigma) for e in exps},
-        flags=flags, notes=notes, timing=timing_convention(delays, dt),
-        sources=[str(getattr(rec, 'source', '') or getattr(rec, 'name', ''))
-                 for rec in recordings],
-        free=free, tied=tied_values(params.flat(), free), priors=list(prob.priors),
-        method=method, n_simulations=prob.engine.n_trajectories,
-        wall_time=time.perf_counter() - t_wall,
-        cost=float(np.sum(r ** 2) / max(r.size, 1)), predictions=after,
-        predictions_before=before, experiments=exps, information=unc.information,
-        covariance=unc.covariance)
+    return flags
 
 
 @blas_single_threaded

@@ -196,54 +196,78 @@ def experiment_from(rec, base: Params, signals: Sequence[str] | None = None) -> 
     name = rec.name or rec.source or 'recording'
     notes: list[str] = []
     dt = _check_time(rec, name)
-    cur = None
+    cur, source = _input_current(rec, name, base, dt, notes)
+    load = _input_load(rec, name, base, notes)
+    measured, sigma = _compared(rec, name, base, signals, notes)
+    # A bag in simulation time starts at the simulator's time t0: the model's dither then has
+    # the simulator's phase (a bench's dither phase is not known: see docs/identification.md).
+    exp = Experiment(name, dt, cur, load, measured, sigma, source, notes,
+                     t0=rec.t0_ns * 1e-9 if base.input.dither_amp > 0 else 0.0)
+    _settled_start(exp, base)
+    return exp
+
+
+def _input_current(rec, name: str, base: Params, dt: float, notes: list[str]
+                   ) -> tuple[np.ndarray, str]:
+    """The current that drives the model and the signal it comes from: the command, or
+    the measured current as its held levels (its dither lines out where the model has its
+    own)."""
     if COMMAND_SIGNAL in rec:
         try:
-            cur = _held_over(name, COMMAND_SIGNAL, np.array(rec[COMMAND_SIGNAL], float), notes)
-            source = COMMAND_SIGNAL
+            return (_held_over(name, COMMAND_SIGNAL, np.array(rec[COMMAND_SIGNAL], float),
+                               notes), COMMAND_SIGNAL)
         except CalibrationError as exc:
             if CURRENT_SIGNAL not in rec:
                 raise
             # A command that starts late (the controller's first update) or has gaps: the
             # applied current says what the plant got.
             notes.append(f'{exc}; the measured {CURRENT_SIGNAL} is used instead')
-    if cur is not None:
-        pass
-    elif CURRENT_SIGNAL in rec:
-        source = CURRENT_SIGNAL
-        cur = _held_over(name, source, np.array(rec[CURRENT_SIGNAL], float), notes)
-        levels = staircase_of(cur) if base.input.dither_amp == 0 else None
-        if levels is not None and np.any(levels != cur):
-            notes.append(f'{name}: {CURRENT_SIGNAL} taken as its held levels (its sensor '
-                         "noise left out of the model's input)")
-            cur = levels
-        if base.input.dither_amp > 0:
-            lines = detect_dither(cur, dt)
-            t = np.arange(cur.size) * dt
-            for line in lines:
-                cur = cur - line.at(t)
-            if lines:
-                notes.append(f'{name}: took {len(lines)} dither line(s) out of the measured '
-                             'current (the model has its own dither)')
-    else:
+    if CURRENT_SIGNAL not in rec:
         raise CalibrationError(f'{name}: no current to drive the model: the recording has '
                                f'{", ".join(rec.signals)}; record {CURRENT_SIGNAL} or '
                                f'{COMMAND_SIGNAL}')
+    cur = _held_over(name, CURRENT_SIGNAL, np.array(rec[CURRENT_SIGNAL], float), notes)
+    levels = staircase_of(cur) if base.input.dither_amp == 0 else None
+    if levels is not None and np.any(levels != cur):
+        notes.append(f'{name}: {CURRENT_SIGNAL} taken as its held levels (its sensor '
+                     "noise left out of the model's input)")
+        cur = levels
+    if base.input.dither_amp > 0:
+        lines = detect_dither(cur, dt)
+        t = np.arange(cur.size) * dt
+        for line in lines:
+            cur = cur - line.at(t)
+        if lines:
+            notes.append(f'{name}: took {len(lines)} dither line(s) out of the measured '
+                         'current (the model has its own dither)')
+    return cur, CURRENT_SIGNAL
+
+
+def _input_load(rec, name: str, base: Params, notes: list[str]) -> np.ndarray | None:
+    """The gauge load pressure as the model's input (its held levels where it is a
+    staircase), or ``None`` (the params file's)."""
+    if LOAD_PRESSURE_SIGNAL not in rec or not np.isfinite(rec[LOAD_PRESSURE_SIGNAL]).any():
+        return None
+    load = _held_over(name, LOAD_PRESSURE_SIGNAL, np.array(rec[LOAD_PRESSURE_SIGNAL], float),
+                      notes) - base.fluid.p_atm
+    # A measured pressure at t_k is the one of the step that ended there (the simulator's
+    # measurements; a bench's sampler sees a change between two samples at the later one):
+    # as an input it holds from the sample before.
+    load = np.append(load[1:], load[-1])
+    levels = staircase_of(load)
+    if levels is not None:
+        n_steps = int(np.count_nonzero(np.diff(levels)))
+        notes.append(f'{name}: {LOAD_PRESSURE_SIGNAL} taken as {n_steps + 1} held '
+                     "level(s) (its sensor noise left out of the model's input)")
+        load = levels
+    return load
+
+
+def _compared(rec, name: str, base: Params, signals: Sequence[str] | None, notes: list[str]
+              ) -> tuple[dict, dict]:
+    """The compared outputs (gauge pressures; non-finite samples as NaN) and each one's
+    noise level, the weight of its residuals."""
     p_atm = base.fluid.p_atm
-    load = None
-    if LOAD_PRESSURE_SIGNAL in rec and np.isfinite(rec[LOAD_PRESSURE_SIGNAL]).any():
-        load = _held_over(name, LOAD_PRESSURE_SIGNAL,
-                          np.array(rec[LOAD_PRESSURE_SIGNAL], float), notes) - p_atm
-        # A measured pressure at t_k is the one of the step that ended there (the
-        # simulator's measurements; a bench's sampler sees a change between two samples at
-        # the later one): as an input it holds from the sample before.
-        load = np.append(load[1:], load[-1])
-        levels = staircase_of(load)
-        if levels is not None:
-            n_steps = int(np.count_nonzero(np.diff(levels)))
-            notes.append(f'{name}: {LOAD_PRESSURE_SIGNAL} taken as {n_steps + 1} held '
-                         "level(s) (its sensor noise left out of the model's input)")
-            load = levels
     explicit = signals is not None
     want = BENCH_OUTPUT_SIGNALS if signals is None else tuple(signals)
     measured = {}
@@ -279,12 +303,7 @@ def experiment_from(rec, base: Params, signals: Sequence[str] | None = None) -> 
         # A noise-free signal (a simulator's exact joint states) still gets a finite weight:
         # 0.1 % of its span, about what the integrator's tolerance leaves of model error.
         sigma[s] = max(sig, NOISE_FLOOR * max(span, abs(float(np.nanmean(y))) * 1e-2, 1e-300))
-    # A bag in simulation time starts at the simulator's time t0: the model's dither then has
-    # the simulator's phase (a bench's dither phase is not known: see docs/identification.md).
-    exp = Experiment(name, dt, cur, load, measured, sigma, source, notes,
-                     t0=rec.t0_ns * 1e-9 if base.input.dither_amp > 0 else 0.0)
-    _settled_start(exp, base)
-    return exp
+    return measured, sigma
 
 
 def _settled_start(exp: Experiment, base: Params) -> None:
