@@ -29,7 +29,7 @@ UNITS = {
          ('campaign', 'graph', 'venv_index', 'orchestration', 'record', 'command_line')),
     ],
     'hydropump_ctrl': [
-        ('cli', 'cli/\n(hydropump command)', ('cli',)),
+        ('cli', 'cli/  fmi/\n(hydropump command, FMU export)', ('cli', 'fmi')),
         ('demo', 'demo/\n(campaign, duty cycles, report)', ('demo', 'pages')),
         ('experiments', 'experiments/  plans\n(harnesses, cases, plans)',
          ('experiments', 'experiment', 'plans')),

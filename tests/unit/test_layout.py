@@ -238,7 +238,7 @@ def test_nothing_below_the_demo_application_imports_it():
 def test_each_command_module_takes_only_the_shared_helpers_from_the_cli():
     graph = import_graph(module_files(PACKAGES['hydropump_ctrl'], 'hydropump_ctrl'))
     cli = 'hydropump_ctrl.cli'
-    groups = ('plant', 'circuit', 'fit', 'calibrate', 'control', 'record', 'sweep')
+    groups = ('plant', 'circuit', 'fit', 'calibrate', 'control', 'record', 'sweep', 'fmu')
     for group in groups:
         assert {t for t in graph[f'{cli}.{group}'] if t.startswith(cli)} == {f'{cli}.options'}
     # The package itself: each command module, and the shared parser.

@@ -28,12 +28,12 @@ import sys
 
 from hydropump_sim.errors import HydropumpError
 
-from . import calibrate, circuit, control, fit, plant, record, sweep
+from . import calibrate, circuit, control, fit, fmu, plant, record, sweep
 from .options import Parser
 
 # Each adds its sub-commands; a command's ``func(args)`` returns the exit code.
 COMMANDS = (plant.register, circuit.register, fit.register, calibrate.register,
-            control.register, record.register, sweep.register)
+            control.register, record.register, sweep.register, fmu.register)
 
 __all__ = ['COMMANDS', 'build_parser', 'main']
 

@@ -1,0 +1,121 @@
+"""``hydropump fmu``: a circuit file (the paper's pump by default) as an FMI 2.0
+co-simulation FMU, built by PythonFMU around :mod:`.hydropump_fmu` and checked by FMPy's
+validation.
+
+The FMU holds the circuit file, its plant file and a manifest (the ``--set`` values, the
+step, the stop time) as data, and the model script as it ships: nothing of the user's files
+becomes code. It is written whole or not at all.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+import os
+from pathlib import Path
+import shutil
+import tempfile
+from typing import Any
+
+import yaml
+
+from hydropump_sim.circuit import CircuitError, default_circuit_path, load_circuit
+from hydropump_sim.errors import HydropumpError
+from hydropump_sim.schema import ParamError, read_yaml
+
+#: The model script copied into every FMU.
+SCRIPT = Path(__file__).with_name('hydropump_fmu.py')
+MANIFEST = 'hydropump_fmu.yaml'
+#: FMI versions built; FMI 3.0 needs pythonfmu3 (not a dependency).
+VERSIONS = (2,)
+
+
+class FmuError(HydropumpError, ValueError):
+    """An FMU that cannot be built or read: one line per problem."""
+
+    head = 'FMU'
+
+
+@dataclass(frozen=True)
+class Exported:
+    """What was built: the file, its variables by causality, FMPy's findings."""
+
+    path: Path
+    inputs: tuple
+    outputs: tuple
+    parameters: tuple
+    problems: tuple = ()
+
+
+def plant_file(circuit_path: Path) -> Path | None:
+    """The plant params file a circuit file names (``plant:``), or ``None``."""
+    doc = read_yaml(circuit_path)
+    plant = doc.get('plant') if isinstance(doc, Mapping) else None
+    return None if plant is None else circuit_path.parent / str(plant)
+
+
+def export_fmu(out: str | Path, circuit: str | Path | None = None, *,
+               sets: Mapping[str, Any] | None = None, step: float = 1.0e-3,
+               stop_time: float = 1.0, fmi: int = 2, validate: bool = True) -> Exported:
+    """Build the FMU of ``circuit`` (default: the paper's pump, ``config/circuits/
+    paper.yaml``) at ``out``.
+
+    Raises
+    ------
+    FmuError
+        An FMI version not built, a circuit that does not load, a step or stop time that
+        is not a positive number, an output that cannot be written, or an FMU FMPy's
+        validation refuses.
+    """
+    if fmi not in VERSIONS:
+        raise FmuError([f'--fmi {fmi}: this suite builds FMI 2.0 co-simulation FMUs (FMI 3.0 '
+                        'needs pythonfmu3, not installed here)'])
+    for what, v in (('step', step), ('stop time', stop_time)):
+        if not (isinstance(v, (int, float)) and v > 0 and v < float('inf')):
+            raise FmuError([f'{what} = {v!r}: expected a positive number of seconds'])
+    if stop_time < step:
+        raise FmuError([f'stop time {stop_time:g} s is shorter than one step ({step:g} s)'])
+    circuit = Path(circuit) if circuit is not None else default_circuit_path()
+    sets = dict(sets or {})
+    try:
+        plant = plant_file(circuit)
+        c = load_circuit(circuit, sets, plant)        # every problem of the file, first
+    except (CircuitError, ParamError) as exc:
+        raise FmuError(exc.lines, str(circuit)) from None
+    out = Path(out)
+    if out.suffix != '.fmu':
+        raise FmuError([f'{out}: an FMU file ends in .fmu'])
+    if out.is_dir():
+        raise FmuError([f'{out}: is a folder; give the FMU file to write'])
+    from pythonfmu.builder import FmuBuilder
+
+    from .hydropump_fmu import parameters
+    with tempfile.TemporaryDirectory(prefix='hydropump_fmu_') as tmp:
+        data = Path(tmp) / 'data'
+        data.mkdir()
+        shutil.copyfile(circuit, data / 'circuit.yaml')
+        if plant is not None:
+            shutil.copyfile(plant, data / 'plant.yaml')
+        (data / MANIFEST).write_text(yaml.safe_dump(
+            {'sets': sets, 'step': float(step), 'stop_time': float(stop_time),
+             'circuit': c.name}))
+        built = Path(tmp) / 'hydropump.fmu'
+        FmuBuilder.build_FMU(SCRIPT, dest=built, project_files=sorted(data.iterdir()),
+                             needsExecutionTool='true')
+        problems = ()
+        if validate:
+            from fmpy.validation import validate_fmu
+            problems = tuple(validate_fmu(str(built)))
+            if problems:
+                raise FmuError([f'FMPy validation: {p}' for p in problems], str(out))
+        try:
+            out.parent.mkdir(parents=True, exist_ok=True)
+            staged = out.with_name(f'.{out.name}.tmp')
+            shutil.copyfile(built, staged)
+            os.replace(staged, out)
+        except OSError as exc:
+            raise FmuError([f'{out}: cannot write: {exc.strerror or exc}']) from None
+    measured = c.measured()
+    from hydropump_sim.measure import SIGNALS
+    return Exported(out, tuple(c.inputs), tuple(n for n in SIGNALS if n in measured),
+                    tuple(p[0] for p in parameters(c) if p[0] not in c.inputs), problems)

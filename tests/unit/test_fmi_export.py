@@ -1,0 +1,185 @@
+"""``hydropump fmu``: the exported FMU (FMI 2.0 co-simulation) read and run by FMPy, as
+another tool would: its model description (units, ranges, FMPy's validation), every output
+against ``simulate()`` stepped as the nodes step, a parameter set through FMI against the
+same value set in the library, and the one-line refusals."""
+
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from hydropump_ctrl.fmi.export import export_fmu, FmuError
+from hydropump_sim.circuit import load_circuit
+from hydropump_sim.measure import SIGNALS
+from hydropump_sim.simulate import IntegratorConfig, simulate
+
+from ..conftest import ROOT
+
+fmpy = pytest.importorskip('fmpy')
+from fmpy.fmi2 import FMU2Slave  # noqa: E402
+from fmpy.validation import validate_fmu  # noqa: E402
+
+CIRCUITS = ROOT / 'config' / 'circuits'
+DT = 1.0e-3
+N = 400
+
+
+def _run(path, inputs, params=None, n=N):
+    """The FMU stepped ``n`` times by DT the way FMI 2.0 orders it: inputs of t_k set, a
+    step to t_k+1, then the inputs of t_k+1 set before its outputs are read. ``inputs``:
+    name -> array of n + 1 values; returns the outputs' names and values at t_0..t_n."""
+    md = fmpy.read_model_description(str(path))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    outs = [v.name for v in md.modelVariables if v.causality == 'output']
+    where = fmpy.extract(str(path))
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=where,
+                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName='test')
+    try:
+        fmu.instantiate()
+        fmu.setupExperiment(startTime=0.0)
+        fmu.enterInitializationMode()
+        for name, value in (params or {}).items():
+            fmu.setReal([vr[name]], [value])
+        for name, u in inputs.items():
+            fmu.setReal([vr[name]], [float(u[0])])
+        fmu.exitInitializationMode()
+        rows = [fmu.getReal([vr[o] for o in outs])]
+        for k in range(n):
+            for name, u in inputs.items():
+                fmu.setReal([vr[name]], [float(u[k])])
+            fmu.doStep(currentCommunicationPoint=k * DT, communicationStepSize=DT)
+            for name, u in inputs.items():
+                fmu.setReal([vr[name]], [float(u[k + 1])])
+            rows.append(fmu.getReal([vr[o] for o in outs]))
+        fmu.terminate()
+    finally:
+        fmu.freeInstance()
+        shutil.rmtree(where, ignore_errors=True)
+    return outs, np.array(rows)
+
+
+def _library(circuit_file, inputs, sets=None, n=N):
+    """The same run through the library: ``simulate()`` stepped at every increment (as the
+    simulator node steps), the measured signals by the suite's names."""
+    c = load_circuit(circuit_file, sets)
+    r = simulate(c, n * DT, inputs={k: v[:n] for k, v in inputs.items()}, dt_out=DT,
+                 config=IntegratorConfig())
+    measured = c.measured()
+    return {name: r.y[:, c.signal_index(measured[name])] for name in SIGNALS
+            if name in measured}
+
+
+@pytest.fixture(scope='module')
+def exported(tmp_path_factory):
+    out = tmp_path_factory.mktemp('fmu')
+    return {name: export_fmu(out / f'{name}.fmu', CIRCUITS / f'{name}.yaml', stop_time=0.5)
+            for name in ('paper', 'fig1')}
+
+
+@pytest.mark.parametrize('name', ['paper', 'fig1'])
+def test_the_fmu_passes_validation_and_describes_its_variables_in_si(exported, name):
+    done = exported[name]
+    assert validate_fmu(str(done.path)) == []
+    md = fmpy.read_model_description(str(done.path))
+    c = load_circuit(CIRCUITS / f'{name}.yaml')
+    by = {v.name: v for v in md.modelVariables}
+    assert [v.name for v in md.modelVariables if v.causality == 'input'] == c.inputs
+    assert [v.name for v in md.modelVariables if v.causality == 'output'] == \
+        [s for s in SIGNALS if s in c.measured()] == list(done.outputs)
+    for name_, info in SIGNALS.items():
+        if name_ in by and info.unit != '-':
+            assert by[name_].unit == info.unit
+    current = by['pump.current']
+    lo, hi = c.input_ranges[c.inputs.index('pump.current')]
+    assert (current.unit, float(current.min), float(current.max)) == ('A', lo, hi)
+    K_a = by['pump.spool.K_a']
+    assert K_a.causality == 'parameter' and K_a.unit == 'N/m' and float(K_a.start) > 0
+    assert md.defaultExperiment.stopTime == '0.5' or float(md.defaultExperiment.stopTime) \
+        == 0.5
+    assert md.coSimulation is not None and md.modelExchange is None
+
+
+@pytest.mark.parametrize('name, inputs', [
+    ('paper', {'pump.current': np.where(np.arange(N + 1) * DT >= 0.1 - 1e-9, 0.58, 0.5)}),
+    ('fig1', {'boom.valve.command': np.where(np.arange(N + 1) * DT >= 0.05 - 1e-9, 0.8, 0.0),
+              'pump.current': np.full(N + 1, 0.6)}),
+])
+def test_the_fmu_in_fmpy_equals_simulate_on_every_output(exported, name, inputs):
+    """Every output at every 1 ms communication point within 1e-6 of its range of
+    ``simulate()`` on the same held inputs; the run moves (a step a test can see)."""
+    outs, got = _run(exported[name].path, inputs)
+    want = _library(CIRCUITS / f'{name}.yaml', inputs)
+    moved = 0
+    for j, o in enumerate(outs):
+        span = max(np.ptp(want[o]), 1e-9 * max(np.abs(want[o]).max(), 1e-300))
+        np.testing.assert_allclose(got[:, j], want[o], rtol=0, atol=1e-6 * span,
+                                   err_msg=f'{name}: {o}')
+        moved += np.ptp(want[o]) > 1e-3 * np.abs(want[o]).max()
+    assert moved >= 3
+
+
+def test_a_parameter_set_through_fmi_is_the_same_value_set_in_the_library(exported):
+    """The line volume doubled through FMI before the initialisation ends: the pressure
+    response is the library's with ``line.V`` doubled, and not the nominal one."""
+    c = load_circuit(CIRCUITS / 'paper.yaml')
+    V = 2.0 * c.volume['line']
+    inputs = {'pump.current': np.where(np.arange(N + 1) * DT >= 0.05 - 1e-9, 0.58, 0.5)}
+    outs, got = _run(exported['paper'].path, inputs, params={'line.V': V})
+    big = _library(CIRCUITS / 'paper.yaml', inputs, {'line.V': V})['line_pressure']
+    nominal = _library(CIRCUITS / 'paper.yaml', inputs)['line_pressure']
+    p = got[:, outs.index('line_pressure')]
+    np.testing.assert_allclose(p, big, rtol=0, atol=1e-6 * np.ptp(big))
+    assert np.max(np.abs(p - nominal)) > 1e-3 * np.ptp(nominal)
+
+
+def test_fmpy_runs_the_default_experiment(exported):
+    """As a user runs an FMU: fmpy.simulate_fmu with its default experiment."""
+    res = fmpy.simulate_fmu(str(exported['paper'].path))
+    assert res['time'][-1] == pytest.approx(0.5)
+    assert np.all(np.isfinite(res['line_pressure'])) and res['line_pressure'][0] > 1e6
+
+
+def test_a_step_the_fmu_cannot_take_is_refused(exported):
+    md = fmpy.read_model_description(str(exported['paper'].path))
+    where = fmpy.extract(str(exported['paper'].path))
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=where,
+                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName='odd')
+    try:
+        fmu.instantiate()
+        fmu.setupExperiment(startTime=0.0)
+        fmu.enterInitializationMode()
+        fmu.exitInitializationMode()
+        with pytest.raises(Exception, match='fmi2DoStep'):
+            fmu.doStep(currentCommunicationPoint=0.0, communicationStepSize=1.5e-3)
+    finally:
+        fmu.freeInstance()
+        shutil.rmtree(where, ignore_errors=True)
+
+
+@pytest.mark.parametrize('argv, line', [
+    (['--fmi', '3', '--out', '{tmp}/a.fmu'], 'error: --fmi 3: this suite builds FMI 2.0'),
+    (['--out', '{tmp}/a.zip'], 'use a .fmu file name'),
+    (['{tmp}/none.yaml', '--out', '{tmp}/a.fmu'], 'none.yaml'),
+    (['--set', 'pump.spool.K_a=1', '--out', '{tmp}/a.fmu'],
+     'error: pump.spool.K_a = 1 N/m: outside the accepted range'),
+    (['--step', '0', '--out', '{tmp}/a.fmu'], '--step'),
+])
+def test_the_command_refuses_bad_input_in_one_line(tmp_path, argv, line):
+    argv = [a.replace('{tmp}', str(tmp_path)) for a in argv]
+    proc = subprocess.run([sys.executable, '-m', 'hydropump_ctrl.cli', 'fmu', *argv],
+                          capture_output=True, text=True, timeout=300)
+    errors = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert proc.returncode == 2 and len(errors) == 1 and line in errors[0], proc.stderr
+    assert 'Traceback' not in proc.stderr and not list(tmp_path.glob('*.fmu'))
+
+
+def test_export_refuses_an_fmu_that_fmpy_would_not_load(tmp_path, monkeypatch):
+    """What FMPy's validation finds is the export's error: no FMU is written."""
+    import fmpy.validation
+    monkeypatch.setattr(fmpy.validation, 'validate_fmu', lambda path: ['a made-up problem'])
+    with pytest.raises(FmuError) as info:
+        export_fmu(tmp_path / 'x.fmu')
+    assert info.value.lines == ['FMPy validation: a made-up problem']
+    assert not list(tmp_path.iterdir())
