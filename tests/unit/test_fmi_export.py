@@ -181,5 +181,5 @@ def test_export_refuses_an_fmu_that_fmpy_would_not_load(tmp_path, monkeypatch):
     monkeypatch.setattr(fmpy.validation, 'validate_fmu', lambda path: ['a made-up problem'])
     with pytest.raises(FmuError) as info:
         export_fmu(tmp_path / 'x.fmu')
-    assert info.value.lines == ['FMPy validation: a made-up problem']
+    assert info.value.lines == [f'{tmp_path / "x.fmu"}: FMPy validation: a made-up problem']
     assert not list(tmp_path.iterdir())

@@ -1,10 +1,11 @@
 """``hydropump fmu``: a circuit file (the paper's pump by default) as an FMI 2.0
 co-simulation FMU for other tools (Amesim, Simscape, OpenModelica, FMPy), checked by FMPy's
-validation before it is written (docs/fmi.md)."""
+validation before it is written; ``--check FILE.fmu`` reads any FMU as the suite would run
+it and lists its variables (docs/fmi.md)."""
 
 from __future__ import annotations
 
-from .options import output_file, overrides, positive_float
+from .options import output_file, overrides, positive_float, UsageError
 
 
 def register(sub) -> None:
@@ -12,7 +13,9 @@ def register(sub) -> None:
                        '2.0 co-simulation FMU')
     c.add_argument('file', nargs='?', help='circuit file (default config/circuits/paper.yaml, '
                    "the paper's pump and load)")
-    c.add_argument('--out', required=True, help='the FMU file to write (.fmu)')
+    c.add_argument('--out', help='the FMU file to write (.fmu)')
+    c.add_argument('--check', metavar='FMU', help="read an FMU instead (any tool's): one line "
+                   'per problem, else its inputs, outputs and parameters with their units')
     c.add_argument('--fmi', choices=('2', '3'), default='2',
                    help='FMI version (2; 3 needs pythonfmu3, not installed)')
     c.add_argument('--set', action='append', metavar='NAME=VALUE',
@@ -25,6 +28,12 @@ def register(sub) -> None:
 
 
 def cmd_fmu(args) -> int:
+    if args.check:
+        if args.file or args.out:
+            raise UsageError('--check reads an FMU: give no circuit file and no --out')
+        return _check(args.check)
+    if not args.out:
+        raise UsageError('--out: give the FMU file to write (or --check FMU to read one)')
     from ..fmi.export import export_fmu
     out = output_file(args.out, ('.fmu',), 'FMU')
     print(f'building {out} (the circuit is compiled if it is not in the cache) ...',
@@ -36,4 +45,23 @@ def cmd_fmu(args) -> int:
           'validation: no problem')
     print(f'  inputs: {", ".join(done.inputs)}')
     print(f'  outputs: {", ".join(done.outputs)}')
+    return 0
+
+
+def _check(path: str) -> int:
+    from ..fmi.reading import read_fmu
+    info = read_fmu(path)
+    md = info.description
+    print(f'{path}: FMI {info.fmi_version} co-simulation, model {info.model_identifier} '
+          f'({md.generationTool or "tool not named"})')
+    for causality in ('input', 'output', 'parameter'):
+        names = info.of(causality)
+        print(f'  {len(names)} {causality}s')
+        for name in names:
+            v = info.variables[name]
+            unit = f' [{v.unit}]' if v.unit else ''
+            rng = f' in [{v.min:g}, {v.max:g}]' if v.min is not None and v.max is not None \
+                else ''
+            start = f', start {v.start:g}' if v.start is not None else ''
+            print(f'    {name}{unit}{rng}{start}')
     return 0

@@ -107,7 +107,7 @@ def export_fmu(out: str | Path, circuit: str | Path | None = None, *,
             from fmpy.validation import validate_fmu
             problems = tuple(validate_fmu(str(built)))
             if problems:
-                raise FmuError([f'FMPy validation: {p}' for p in problems], str(out))
+                raise FmuError([f'{out}: FMPy validation: {p}' for p in problems])
         try:
             out.parent.mkdir(parents=True, exist_ok=True)
             staged = out.with_name(f'.{out.name}.tmp')
