@@ -61,4 +61,5 @@ def test_ctrl_c_exits_with_130(monkeypatch, capsys):
 def test_the_parser_has_every_command():
     sub = next(a for a in cli.build_parser()._actions if a.dest == 'command')
     assert set(sub.choices) == {'analyze', 'simulate', 'circuit', 'fit', 'calibrate',
-                                'validate', 'design', 'closed-loop', 'record', 'sweep'}
+                                'validate', 'design', 'closed-loop', 'record', 'sweep',
+                                'fmu'}

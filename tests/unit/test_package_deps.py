@@ -31,6 +31,8 @@ THIRD_PARTY = {
     'dask': ('python3-dask-distributed-pip', 'dask'),
     'pyarrow': ('python3-pyarrow-pip', 'pyarrow'),
     'SALib': ('python3-salib-pip', 'SALib'),
+    'fmpy': ('python3-fmpy-pip', 'fmpy'),
+    'pythonfmu': ('python3-pythonfmu-pip', 'pythonfmu'),
 }
 # -pip keys the public rosdep database has (rosdep/python.yaml of ros/rosdistro).
 UPSTREAM_PIP = {'python3-rosbags-pip'}
