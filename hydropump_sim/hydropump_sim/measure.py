@@ -144,6 +144,7 @@ def model_topics(model) -> tuple[list[Topic], list[tuple[str, str]]]:
             commands.append((f'loads/{name}/command', sig['command']))
     from .energy import topics as energy_topics
     topics += [Topic(topic, signal, 'energy', None) for topic, signal in energy_topics(model)]
+    topics += model.own_topics()
     return topics, commands
 
 
@@ -183,7 +184,7 @@ class Readout:
         if 'load_pressure' not in self._signals and 'ls_pressure' in m:
             self._signals['load_pressure'] = ix(m['ls_pressure'])
         self._load_flows = None
-        if 'load_flow' not in self._signals:
+        if 'load_flow' not in self._signals and model.loads():
             self._load_flows = np.array([ix(v['flow']) for v in model.loads().values()
                                          if 'flow' in v], dtype=np.int64)
         pump = model.pump_name()
@@ -194,6 +195,11 @@ class Readout:
         self._topics = [(t.topic, ix(t.signal)) for t in self.topics if t.kind != 'energy']
         self._joints = [(j, ix(p) if p else None, ix(v) if v else None)
                         for j, p, v in model.joints()]
+
+    @property
+    def names(self) -> list[str]:
+        """The measured signals :meth:`signals` gives (a user's FMU may lack some)."""
+        return list(self._signals) + (['load_flow'] if self._load_flows is not None else [])
 
     def signals(self, y: np.ndarray) -> dict[str, float]:
         """Every measured signal at one step, without sensor models (SI, gauge)."""

@@ -68,6 +68,9 @@ class SimulatorConfig:
     circuit_file: str = spec('path', 'circuit the pump feeds (config/circuits/*.yaml), its plant '
                              "the params file; empty = config/circuits/paper.yaml, the paper's "
                              'load', default='')
+    fmu_file: str = spec('path', "a user's FMU (FMI 2.0 co-simulation) as the plant, in place "
+                         'of the circuit: its inputs and outputs met by name (docs/fmi.md); '
+                         'empty = the circuit', default='')
     circuit_sets: str = spec('-', "values over the circuit file's, NAME=VALUE pairs separated "
                              'by spaces (boom.compensator=post pump.type=ls_pump), as '
                              'hydropump circuit --set takes them (live: from the next '

@@ -122,6 +122,11 @@ class Model:
         command input."""
         return {}
 
+    def own_topics(self) -> list:
+        """Topics of its own besides the loads' (:class:`~hydropump_sim.measure.Topic`: a
+        user's FMU publishes every output)."""
+        return []
+
     def joints(self) -> list[tuple[str, str | None, str | None]]:
         """``(joint, position signal, velocity signal)`` of its ``joint_states`` entries
         besides the pump's spool and swash plate."""

@@ -5,7 +5,6 @@ missing, before FMPy parses or extracts it."""
 
 import subprocess
 import sys
-import textwrap
 import zipfile
 
 import pytest
@@ -14,47 +13,14 @@ from hydropump_ctrl.fmi import reading
 from hydropump_ctrl.fmi.export import FmuError
 from hydropump_ctrl.fmi.reading import read_fmu
 
+from .. import fmus
+
 pytest.importorskip('fmpy')
 pytest.importorskip('pythonfmu')
 
-# A load a user might bring: an orifice, flow from the pressure across it (not the suite's
-# code: PythonFMU's own classes only).
-ORIFICE = textwrap.dedent("""
-    from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Real
-
-
-    class Orifice(Fmi2Slave):
-        description = 'A sharp-edged orifice to tank'
-
-        def __init__(self, **kwargs):
-            super().__init__(**kwargs)
-            self.pressure = 1.0e7
-            self.flow = 0.0
-            self.Cd_A = 2.0e-6
-            self.register_variable(Real('pressure', causality=Fmi2Causality.input,
-                                        variability=Fmi2Variability.continuous))
-            self.register_variable(Real('flow', causality=Fmi2Causality.output,
-                                        variability=Fmi2Variability.continuous))
-            self.register_variable(Real('Cd_A', causality=Fmi2Causality.parameter,
-                                        variability=Fmi2Variability.fixed))
-
-        def do_step(self, current_time, step_size):
-            self.flow = self.Cd_A * (2.0 * max(self.pressure, 0.0) / 850.0) ** 0.5
-            return True
-    """)
-
-
 @pytest.fixture(scope='module')
 def orifice(tmp_path_factory):
-    from pythonfmu.builder import FmuBuilder
-    where = tmp_path_factory.mktemp('orifice')
-    script = where / 'orifice.py'
-    script.write_text(ORIFICE)
-    sys.path.insert(0, str(where))
-    try:
-        return FmuBuilder.build_FMU(script, dest=where / 'Orifice.fmu')
-    finally:
-        sys.path.remove(str(where))
+    return fmus.build(tmp_path_factory.mktemp('orifice'), 'Orifice', fmus.ORIFICE)
 
 
 def _rewrite(src, dest, drop=(), change=None):

@@ -13,6 +13,7 @@ each an event on ``events``, stamped with the simulation time they happened at.
 
 from __future__ import annotations
 
+import re
 import threading
 import time
 
@@ -64,6 +65,8 @@ CONFIRM_WINDOW = 0.5
 INPUTS = 'inputs.'
 # s of steady clock between two mirrors of the command topics into their parameters.
 MIRROR_PERIOD = 0.1
+# A ROS parameter name an FMU's parameter may take (others are left undeclared).
+_PARAMETER = re.compile(r'[A-Za-z][A-Za-z0-9_]*(\.[A-Za-z][A-Za-z0-9_]*)*\Z')
 # The runner's events (its stats keys) as the suite's event kinds.
 EVENT_KINDS = {'lock_step_timeouts': LOCK_STEP_TIMEOUT, 'watchdog_trips': SAFE_CURRENT}
 
@@ -125,8 +128,11 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         the circuit adds (its load-sensing pressure, each load's signals), the events."""
         qos = self._qos
         self._pub_clock = self.create_publisher(Clock, CLOCK, qos)
-        self._pub_p = {k: self.create_publisher(FluidPressure, k, qos) for k in PRESSURE_SIGNALS}
-        self._pub_f = {k: self.create_publisher(Float64, k, qos) for k in FLOW_SIGNALS}
+        have = self.runner.readout.names
+        self._pub_p = {k: self.create_publisher(FluidPressure, k, qos) for k in PRESSURE_SIGNALS
+                       if k in have}
+        self._pub_f = {k: self.create_publisher(Float64, k, qos) for k in FLOW_SIGNALS
+                       if k in have}
         self._pub_js = self.create_publisher(JointState, 'joint_states', qos)
         self._pub_i = self.create_publisher(Float64, 'solenoid_current', qos)
         self._pub_x = {t.topic: self.create_publisher(
@@ -160,6 +166,9 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
             raise bridge.StartupError(errors)
         path = self._circuit_file = cfg.circuit_file or str(default_circuit_path())
         self.params = params
+        self.cfg = cfg
+        if cfg.fmu_file:
+            return self._configure_fmu(d, cfg, profile, sensors, overrides)
         try:
             circuit = self._circuit(cfg.circuit_sets)
         except HydropumpError as exc:
@@ -186,6 +195,40 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
                 scenario = load_scenario(cfg.scenario_file, [*SCENARIO_INPUTS,
                                                              *circuit.all_inputs()]).inputs
             except ScenarioError as exc:
+                raise bridge.StartupError([f'{cfg.scenario_file}: {ln}' for ln in exc.lines]) \
+                    from None
+        self.schema_specs = d.specs
+        self.runner = Runner(plant, cfg, profile=SensorProfile.from_config(sensors, overrides),
+                             scenario=scenario, log=self._log)
+
+    def _configure_fmu(self, d, cfg, profile, sensors, overrides) -> None:
+        """A user's FMU as the plant (hydropump_ctrl.fmi.plant): its parameters as
+        read-only ``fmu_parameters.<name>``; a circuit file or circuit_sets beside it are
+        refused."""
+        if cfg.circuit_file or cfg.circuit_sets:
+            raise bridge.StartupError(['fmu_file: the FMU is the whole plant; give no '
+                                       'circuit_file or circuit_sets with it'])
+        from hydropump_ctrl.fmi.plant import FmuSimulator
+        try:
+            plant = FmuSimulator(cfg.fmu_file, self.params, cfg.dt)
+        except HydropumpError as exc:
+            raise bridge.StartupError(exc.lines or [str(exc)]) from None
+        self._inputs = {}
+        d.finish()
+        from rcl_interfaces.msg import ParameterDescriptor
+        for name, value in plant.model.parameters().items():
+            key = 'fmu_parameters.' + name
+            if _PARAMETER.match(key):
+                self.declare_parameter(key, float(value), ParameterDescriptor(
+                    read_only=True, description=f'the FMU parameter {name} '
+                    f'[{plant.model.info.variables[name].unit or "-"}]'))
+        scenario = None
+        if cfg.scenario_file:
+            try:
+                scenario = load_scenario(cfg.scenario_file, [*SCENARIO_INPUTS,
+                                                             *plant.model.all_inputs()]).inputs
+            except ScenarioError as exc:
+                plant.close()
                 raise bridge.StartupError([f'{cfg.scenario_file}: {ln}' for ln in exc.lines]) \
                     from None
         self.schema_specs = d.specs
@@ -260,7 +303,8 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         plant = None
         for p in params:
             if reason is None and p.name == 'circuit_sets':
-                plant, reason = self._other_circuit(p.value)
+                plant, reason = self._other_circuit(p.value) if not self.cfg.fmu_file else \
+                    (None, 'circuit_sets: the plant is an FMU (fmu_file)')
         if reason is None:
             if plant is not None:
                 self.runner.set_plant(plant)
@@ -372,6 +416,8 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         self.runner.stop()
         self._thread.join(timeout=5.0)
         self._io.close()
+        if hasattr(self.runner.sim, 'close'):     # a user's FMU: ended, its files removed
+            self.runner.sim.close()
 
     # ---- publishing (stepping thread) ----------------------------------------------------
 
@@ -381,7 +427,7 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         self._m_clock = Clock()
         self._m_float = Float64()
         self._m_p = {k: FluidPressure(variance=prof.spec(k).noise_std ** 2)
-                     for k in PRESSURE_SIGNALS}
+                     for k in PRESSURE_SIGNALS if k in self.runner.readout.names}
         readout = self.runner.readout
         self._m_js = JointState(name=[j[0] for j in JOINTS]
                                 + [j[0] for j in readout.model.joints()])
@@ -402,9 +448,9 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         set_stamp(self._m_clock.clock, ns)
         self._pub_clock.publish(self._m_clock)
         sig, f = frame.signals, self._m_float
-        for topic in FLOW_SIGNALS:
+        for topic, pub in self._pub_f.items():
             f.data = sig[topic]
-            self._pub_f[topic].publish(f)
+            pub.publish(f)
         for topic, msg in self._m_p.items():
             set_stamp(msg.header.stamp, ns)
             msg.fluid_pressure = absolute(sig[topic], self._p_atm)
@@ -420,7 +466,8 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         js = self._m_js
         set_stamp(js.header.stamp, ns)
         names, positions, velocities = frame.joints
-        js.position = [sig['spool_position'], sig['actuator_position'], *positions]
+        js.position = [sig.get('spool_position', 0.0), sig.get('actuator_position', 0.0),
+                       *positions]
         js.velocity = [*frame.velocities, *velocities]
         js.effort = [*frame.efforts, *(0.0 for _ in names)]
         self._pub_js.publish(js)

@@ -1,0 +1,252 @@
+"""A user's FMU as the simulator's plant: an FMI 2.0 co-simulation FMU stepped by FMPy with
+the node's step, behind the same interface as :class:`hydropump_sim.Simulator`.
+
+How the FMU meets the suite, by name:
+
+- its inputs ``current`` (or ``pump.current``) [A] and, where it has them,
+  ``load_pressure`` (``load.load_pressure``) [Pa gauge], ``aperture`` (``load.aperture``)
+  and ``shaft_speed`` (``pump.shaft_speed``) are the operating point's: the current the
+  controller commands, the rest the simulator's parameters and scenario; its other inputs
+  hold their starts;
+- its outputs named after the suite's measured signals (``line_pressure``, ``line_flow``,
+  ``spool_position`` ...) are published on their topics, SI and gauge as the FMU gives them;
+  every output is published besides on ``fmu/<name>`` (a ``.`` in a name is a ``/``);
+- its parameters are the node's read-only ``fmu_parameters.<name>`` parameters.
+
+A step that fails stops the simulator with the FMU's own message.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import shutil
+
+import numpy as np
+
+from hydropump_sim.measure import SIGNALS, Topic
+from hydropump_sim.simulate import IntegrationError
+from hydropump_sim.system import Model
+
+from .export import FmuError
+from .reading import FmuInfo, read_fmu
+
+#: The operating point's inputs and the FMU input names each is looked for under.
+PLANT_INPUTS = {'current': ('current', 'pump.current'),
+                'load_pressure': ('load_pressure', 'load.load_pressure'),
+                'aperture': ('aperture', 'load.aperture'),
+                'shaft_speed': ('shaft_speed', 'pump.shaft_speed')}
+#: The pump's joints and pressures the simulator's readout takes, and the measured signal
+#: each is when the FMU does not output ``pump.<name>`` itself (velocities: 0).
+PUMP_SIGNALS = {'x_c': 'spool_position', 'v_c': None, 'x_a': 'actuator_position',
+                'v_a': None, 'P_a': 'actuator_pressure', 'P_l': 'line_pressure'}
+_TOKEN = re.compile(r'[A-Za-z][A-Za-z0-9_]*\Z')
+
+
+def topic_of(name: str) -> str | None:
+    """``fmu/<name>`` with ``.`` as ``/``, or ``None`` if the name makes no ROS topic."""
+    parts = name.split('.')
+    return 'fmu/' + '/'.join(parts) if all(_TOKEN.match(p) for p in parts) else None
+
+
+class FmuModel(Model):
+    """An FMU's names as a :class:`~hydropump_sim.system.Model` (no states of its own: the
+    FMU keeps them)."""
+
+    def __init__(self, info: FmuInfo, params):
+        self.info = info
+        # The FMU's own dither, if any, is in its current: the node adds none.
+        self.params = params.replace({'input.dither_amp': 0.0})
+        self.name = info.model_identifier
+        self.fluid = params.fluid
+        v = info.variables
+        self.inputs = info.of('input')
+        self.input_units = [v[n].unit for n in self.inputs]
+        self.input_ranges = [(-math.inf if v[n].min is None else v[n].min,
+                              math.inf if v[n].max is None else v[n].max) for n in self.inputs]
+        self.u0 = np.array([v[n].start or 0.0 for n in self.inputs], dtype=float)
+        self.outputs = info.of('output')
+        own = [f'pump.{k}' for k in PUMP_SIGNALS if f'pump.{k}' not in self.outputs]
+        self.signals = self.outputs + own
+        self.signal_units = [v[n].unit for n in self.outputs] + [''] * len(own)
+        self.states, self.state_units = [], []
+        self.state_scale = np.zeros(0)
+        self.integrating = np.zeros(0, dtype=bool)
+        self.p = np.zeros(0)
+        self.dither = 0.0
+        self._plant = {k: next(n for n in names if n in self.inputs)
+                       for k, names in PLANT_INPUTS.items()
+                       if any(n in self.inputs for n in names)}
+
+    def measured(self) -> dict[str, str]:
+        return {n: n for n in SIGNALS if n in self.outputs}
+
+    def plant_inputs(self) -> dict[str, str]:
+        return dict(self._plant)
+
+    def plant_params(self):
+        return self.params
+
+    def pump_name(self) -> str:
+        return 'pump'
+
+    def own_topics(self) -> list:
+        out = []
+        for n, unit in zip(self.outputs, self.signal_units):
+            topic = topic_of(n)
+            if topic is not None:
+                out.append(Topic(topic, n, 'pressure' if unit == 'Pa' else 'value', None))
+        return out
+
+    def parameters(self) -> dict[str, float]:
+        """The FMU's real parameters and their starts."""
+        return {n: v.start for n, v in self.info.variables.items()
+                if v.causality == 'parameter' and v.type == 'Real' and v.start is not None}
+
+
+def check_plant(info: FmuInfo) -> None:
+    """:class:`FmuError` unless the FMU can be the plant: a current input, one measured
+    signal out."""
+    names = info.of('input')
+    problems = []
+    if not any(n in names for n in PLANT_INPUTS['current']):
+        problems.append(f'{info.path}: no input current or pump.current (the solenoid current '
+                        f'[A] the controller commands; its inputs: {", ".join(names) or "none"})')
+    if not any(n in SIGNALS for n in info.of('output')):
+        problems.append(f'{info.path}: no output named after a measured signal of the suite '
+                        f'({", ".join(SIGNALS)}); its outputs: '
+                        f'{", ".join(info.of("output")) or "none"}')
+    if problems:
+        raise FmuError(problems)
+
+
+class FmuSimulator:
+    """An FMU stepped in increments of ``dt`` [s], as :class:`hydropump_sim.Simulator`
+    steps a model: ``t``, ``steps``, the inputs ``u``, :meth:`step`, :meth:`outputs`,
+    :meth:`reset`."""
+
+    def __init__(self, path, params, dt: float = 1.0e-3):
+        import fmpy
+        from fmpy.fmi2 import (
+            fmi2CallbackAllocateMemoryTYPE,
+            fmi2CallbackFreeMemoryTYPE,
+            fmi2CallbackFunctions,
+            fmi2CallbackLoggerTYPE,
+            FMU2Slave,
+        )
+        info = read_fmu(path)
+        check_plant(info)
+        self.model = FmuModel(info, params)
+        self.dt = float(dt)
+        self.u = self.model.u0.copy()
+        self.t, self.steps = 0.0, 0
+        self.stats = np.zeros(2, dtype=np.int64)
+        self.reset_note = None
+        self.messages: list[str] = []
+        self._where = fmpy.extract(str(info.path))
+        callbacks = fmi2CallbackFunctions()
+        callbacks.logger = fmi2CallbackLoggerTYPE(self._logged)
+        callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(fmpy.calloc)
+        callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(fmpy.free)
+        try:
+            from ctypes import byref
+
+            from fmpy.logging import addLoggerProxy
+            addLoggerProxy(byref(callbacks))
+        except Exception:      # messages then arrive unformatted: still worth keeping
+            pass
+        self._callbacks = callbacks
+        md = info.description
+        self._vr = {v.name: v.valueReference for v in md.modelVariables}
+        self._in = [self._vr[n] for n in self.model.inputs]
+        self._out = [self._vr[n] for n in self.model.outputs]
+        self._fmu = FMU2Slave(guid=md.guid, unzipDirectory=self._where,
+                              modelIdentifier=info.model_identifier, instanceName='simulator')
+        self._fmu.instantiate(callbacks=callbacks, loggingOn=True)
+        self._started = False
+        self._fmu_t = 0.0
+        self.y = np.zeros(len(self.model.signals))
+        self.reset()
+
+    @property
+    def params(self):
+        return self.model.params
+
+    def _logged(self, env, instance, status, category, message):
+        text = message.decode(errors='replace') if isinstance(message, bytes) else str(message)
+        self.messages = (self.messages + [text])[-20:]
+
+    def _call(self, what: str, fn, *args, **kwargs):
+        try:
+            return fn(*args, **kwargs)
+        except Exception as exc:
+            said = '; '.join(m for m in self.messages if m) or str(exc)
+            raise IntegrationError(f'the FMU failed in {what} at t = {self.t:.6g} s of '
+                                   f'simulation time: {said}') from None
+
+    def reset(self, inputs=None, keep_time: bool = False, keep_inputs: bool = True) -> None:
+        """Back to the FMU's initial state at the held inputs (the FMU's starts unless
+        ``keep_inputs``), with ``inputs`` by name over them."""
+        if not keep_inputs:
+            self.u = self.model.u0.copy()
+        for name, v in (inputs or {}).items():
+            self.set_input(name, v)
+        f = self._fmu
+        if self._started:
+            self._call('fmi2Reset', f.reset)
+        self._call('fmi2SetupExperiment', f.setupExperiment, startTime=0.0)
+        self._call('fmi2EnterInitializationMode', f.enterInitializationMode)
+        if self._in:
+            self._call('fmi2SetReal', f.setReal, self._in, list(self.u))
+        self._call('fmi2ExitInitializationMode', f.exitInitializationMode)
+        self._started = True
+        self._fmu_t = 0.0
+        if not keep_time:
+            self.t, self.steps = 0.0, 0
+
+    def take_inputs(self, other) -> None:
+        mine, theirs = self.model.inputs, other.model.inputs
+        for k, name in enumerate(mine):
+            if name in theirs:
+                self.u[k] = other.u[theirs.index(name)]
+
+    def set_input(self, name: str, value: float) -> None:
+        k = self.model.input_index(name)
+        lo, hi = self.model.input_ranges[k]
+        self.u[k] = min(max(float(value), lo), hi)
+
+    def step(self) -> None:
+        """One increment of the FMU: the held inputs set, ``fmi2DoStep`` over ``dt``
+        (its own clock runs on from its reset, whatever jumps the node's makes)."""
+        f = self._fmu
+        if self._in:
+            self._call('fmi2SetReal', f.setReal, self._in, list(self.u))
+        self._call('fmi2DoStep', f.doStep, currentCommunicationPoint=self._fmu_t,
+                   communicationStepSize=self.dt)
+        self._fmu_t += self.dt
+        self.stats[0] += 1
+        self.steps += 1
+        self.t = self.steps * self.dt
+
+    def outputs(self) -> np.ndarray:
+        """Every signal now: the FMU's outputs, then the pump's joints and pressures the
+        readout takes (from the measured signals it has, else 0)."""
+        m = self.model
+        n = len(m.outputs)
+        if self._out:
+            if self._in:
+                self._call('fmi2SetReal', self._fmu.setReal, self._in, list(self.u))
+            self.y[:n] = self._call('fmi2GetReal', self._fmu.getReal, self._out)
+        for j, name in enumerate(m.signals[n:], n):
+            src = PUMP_SIGNALS[name.split('.', 1)[1]]
+            self.y[j] = self.y[m.outputs.index(src)] if src in m.outputs else 0.0
+        return self.y
+
+    def close(self) -> None:
+        """The FMU ended and its unpacked files removed."""
+        try:
+            self._fmu.terminate()
+            self._fmu.freeInstance()
+        except Exception:        # an FMU that failed may refuse to end: its files still go
+            pass
+        shutil.rmtree(self._where, ignore_errors=True)

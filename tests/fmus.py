@@ -1,0 +1,100 @@
+"""FMUs this suite did not write, for the FMI tests: small models written here with PythonFMU's
+own classes (none of the suite's code), built into FMUs in a test's folder."""
+
+from pathlib import Path
+import sys
+import textwrap
+
+# A load a user might bring: an orifice, flow from the pressure across it (not the suite's
+# code: PythonFMU's own classes only).
+ORIFICE = textwrap.dedent("""
+    from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Real
+
+
+    class Orifice(Fmi2Slave):
+        description = 'A sharp-edged orifice to tank'
+
+        def __init__(self, **kwargs):
+            super().__init__(**kwargs)
+            self.pressure = 1.0e7
+            self.flow = 0.0
+            self.Cd_A = 2.0e-6
+            self.register_variable(Real('pressure', causality=Fmi2Causality.input,
+                                        variability=Fmi2Variability.continuous))
+            self.register_variable(Real('flow', causality=Fmi2Causality.output,
+                                        variability=Fmi2Variability.continuous))
+            self.register_variable(Real('Cd_A', causality=Fmi2Causality.parameter,
+                                        variability=Fmi2Variability.fixed))
+
+        def do_step(self, current_time, step_size):
+            self.flow = self.Cd_A * (2.0 * max(self.pressure, 0.0) / 850.0) ** 0.5
+            return True
+    """)
+
+
+# A pump as a user might model it elsewhere: the flow follows the current through a first
+# lag, the line pressure rises with the flow over the load's resistance; it fails on purpose
+# past ``fail_after`` [s] (0: never), saying why.
+PUMP = textwrap.dedent("""
+    from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Real
+    from pythonfmu.enums import Fmi2Status
+
+
+    class LagPump(Fmi2Slave):
+        def __init__(self, **kwargs):
+            super().__init__(**kwargs)
+            self.current = 0.5
+            self.line_flow = 0.0
+            self.line_pressure = 0.0
+            self.tau = 0.02
+            self.fail_after = 0.0
+            self.t = 0.0
+            for name, causality, variability in (
+                    ('current', Fmi2Causality.input, Fmi2Variability.continuous),
+                    ('line_flow', Fmi2Causality.output, Fmi2Variability.continuous),
+                    ('line_pressure', Fmi2Causality.output, Fmi2Variability.continuous),
+                    ('tau', Fmi2Causality.parameter, Fmi2Variability.fixed),
+                    ('fail_after', Fmi2Causality.parameter, Fmi2Variability.fixed)):
+                self.register_variable(Real(name, causality=causality,
+                                            variability=variability))
+
+        def _target(self):
+            return 1.0e-3 * (self.current - 0.3)
+
+        def exit_initialization_mode(self):
+            self.line_flow = self._target()
+            self.line_pressure = 2.0e6 + 8.0e9 * self.line_flow
+            self.t = 0.0
+
+        def do_step(self, current_time, step_size):
+            if self.fail_after and current_time >= self.fail_after:
+                self.log('the pump model diverged (made to, for the test)', Fmi2Status.error)
+                return False
+            n = 10
+            h = step_size / n
+            for _ in range(n):
+                self.line_flow += h * (self._target() - self.line_flow) / self.tau
+            self.line_pressure = 2.0e6 + 8.0e9 * self.line_flow
+            self.t = current_time + step_size
+            return True
+    """)
+
+
+
+
+def build(where: Path, name: str, source: str) -> Path:
+    """``source`` (a PythonFMU slave) built as ``<where>/<name>.fmu``."""
+    from pythonfmu.builder import FmuBuilder
+    script = where / f'{name}.py'
+    script.write_text(source)
+    sys.path.insert(0, str(where))
+    try:
+        return FmuBuilder.build_FMU(script, dest=where / f'{name}.fmu')
+    finally:
+        sys.path.remove(str(where))
+
+
+def lag_pump(where: Path, name: str = 'lag_pump', fail_after: float = 0.0) -> Path:
+    """The first-order pump, failing past ``fail_after`` [s] (0: never)."""
+    return build(where, name, PUMP.replace('self.fail_after = 0.0',
+                                           f'self.fail_after = {fail_after!r}'))

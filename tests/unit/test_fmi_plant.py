@@ -1,0 +1,124 @@
+"""A user's FMU as the simulator's plant, without ROS: the stepper the node uses
+(hydropump_ctrl.fmi.plant) on a first-order pump FMU this suite did not write, against FMPy
+running it alone; the names it needs; a failing step's own message; the simulator's Runner
+publishing what the FMU computes."""
+
+import shutil
+
+import numpy as np
+import pytest
+
+from hydropump_ctrl.fmi.export import FmuError
+from hydropump_ctrl.fmi.plant import FmuSimulator, topic_of
+from hydropump_sim.runner import Runner
+from hydropump_sim.simulate import IntegrationError
+
+from .. import fmus
+
+fmpy = pytest.importorskip('fmpy')
+pytest.importorskip('pythonfmu')
+
+
+@pytest.fixture(scope='module')
+def lag_pump(tmp_path_factory):
+    return fmus.lag_pump(tmp_path_factory.mktemp('lag'))
+
+
+def _alone(path, currents, dt=1.0e-3):
+    """FMPy alone: each current held over its step, the line flow after each."""
+    from fmpy.fmi2 import FMU2Slave
+    md = fmpy.read_model_description(str(path))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    where = fmpy.extract(str(path))
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=where,
+                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName='alone')
+    out = []
+    try:
+        fmu.instantiate()
+        fmu.setupExperiment(startTime=0.0)
+        fmu.enterInitializationMode()
+        fmu.setReal([vr['current']], [currents[0]])
+        fmu.exitInitializationMode()
+        for k, i in enumerate(currents):
+            fmu.setReal([vr['current']], [i])
+            fmu.doStep(currentCommunicationPoint=k * dt, communicationStepSize=dt)
+            out.append(fmu.getReal([vr['line_flow']])[0])
+    finally:
+        fmu.freeInstance()
+        shutil.rmtree(where, ignore_errors=True)
+    return np.array(out)
+
+
+def test_the_stepper_is_the_fmu_run_alone(lag_pump, params):
+    currents = np.where(np.arange(120) < 30, 0.5, 0.62)
+    sim = FmuSimulator(lag_pump, params, 1.0e-3)
+    try:
+        assert sim.model.plant_inputs() == {'current': 'current'}
+        assert sim.model.measured() == {'line_flow': 'line_flow',
+                                        'line_pressure': 'line_pressure'}
+        assert sim.model.parameters() == {'tau': 0.02, 'fail_after': 0.0}
+        flow = []
+        for i in currents:
+            sim.set_input('current', i)
+            sim.step()
+            flow.append(sim.outputs()[sim.model.signal_index('line_flow')])
+        np.testing.assert_array_equal(flow, _alone(lag_pump, currents))
+        assert sim.t == pytest.approx(0.12) and flow[-1] > flow[0]
+        # A reset goes back to the FMU's start at the held inputs.
+        sim.reset()
+        assert sim.t == 0.0
+        assert sim.outputs()[0] == pytest.approx(1.0e-3 * (0.62 - 0.3))
+    finally:
+        sim.close()
+
+
+def test_the_runner_publishes_what_the_fmu_computes(lag_pump, params):
+    """The simulator node's core (Runner) on the FMU: ideal sensors, the measured signals
+    the FMU has and its every output on fmu/<name>."""
+    from .test_runner import cfg, run, Sink, still
+    sim = FmuSimulator(lag_pump, params, 1.0e-3)
+    runner = Runner(sim, cfg(real_time_factor=0.0, initial_current=0.55), **still())
+    sink = Sink(runner, 50)
+    try:
+        runner.command(0.55)
+        run(runner, sink)
+    finally:
+        sim.close()
+    frames = sink.frames
+    assert sorted(frames[-1].signals) == ['line_flow', 'line_pressure']
+    want = _alone(lag_pump, np.full(50, 0.55))
+    got = [f.signals['line_flow'] for f in frames]
+    np.testing.assert_allclose(got, want[:len(got)], rtol=1e-12)
+    assert frames[-1].extra['fmu/line_pressure'] == frames[-1].signals['line_pressure']
+
+
+def test_an_fmu_that_cannot_be_the_plant_says_what_it_lacks(tmp_path, params):
+    path = fmus.build(tmp_path, 'Orifice', fmus.ORIFICE)
+    with pytest.raises(FmuError) as info:
+        FmuSimulator(path, params)
+    assert info.value.lines == [
+        f'{path}: no input current or pump.current (the solenoid current [A] the controller '
+        'commands; its inputs: pressure)',
+        f'{path}: no output named after a measured signal of the suite (solenoid_current, '
+        'pump_flow, line_flow, load_flow, actuator_pressure, line_pressure, load_pressure, '
+        'spool_position, actuator_position); its outputs: flow']
+
+
+def test_a_failing_step_is_the_fmus_own_message(tmp_path, params):
+    sim = FmuSimulator(fmus.lag_pump(tmp_path, 'failing', fail_after=0.003), params)
+    try:
+        for _ in range(3):
+            sim.step()
+        with pytest.raises(IntegrationError) as info:
+            sim.step()
+        assert str(info.value) == ('the FMU failed in fmi2DoStep at t = 0.003 s of simulation '
+                                   'time: the pump model diverged (made to, for the test)')
+    finally:
+        sim.close()
+
+
+@pytest.mark.parametrize('name, topic', [('line_flow', 'fmu/line_flow'),
+                                         ('pump.x_c', 'fmu/pump/x_c'),
+                                         ('der(x)', None), ('1st', None), ('a..b', None)])
+def test_an_output_name_makes_a_topic_or_none(name, topic):
+    assert topic_of(name) == topic
