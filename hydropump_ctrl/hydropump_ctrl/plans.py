@@ -338,9 +338,10 @@ def _current(data: Any, where: str, errors: list[str], notes: list[str]) -> Sche
     cur = parse_schedule(data, where, errors, units=UNITS, time_sign='>= 0',
                          bases=CURRENT_BASES)
     if cur is not None and is_sine(cur) and (cur.kind != 'constant' or cur.sine[2:] != (0, 0)
-                                             or cur.sine[1] <= 0):
-        errors.append(f'{where}.sine: the controller runs a sine of frequency > 0 about a '
-                      'constant offset, from the start (no steps under it, no phase or start)')
+                                             or cur.sine[1] <= 0 or cur.sine[0] <= 0):
+        errors.append(f'{where}.sine: the controller runs a sine of amplitude and frequency > 0 '
+                      'about a constant offset, from the start (no steps under it, no phase '
+                      'or start)')
         return None
     return cur
 
@@ -350,7 +351,7 @@ def _new_spelling(data: Mapping, where: str, errors: list[str], notes: list[str]
     """A current in the spelling before the schedule grammar (``shape: staircase`` or
     ``shape: sine``) in today's, with a note naming it."""
     shape = data['shape']
-    if shape not in OLD_SHAPES:
+    if not isinstance(shape, str) or shape not in OLD_SHAPES:
         errors.append(f'{where}.shape = {shape!r}: expected staircase or sine (or write the '
                       'schedule itself: staircase: {levels, dwell}, or offset and sine)')
         return None
@@ -381,7 +382,8 @@ def _steps(data: Any, where: str, errors: list[str]) -> tuple | None:
     values are checked with the plant."""
     if data is None:
         return ()
-    sched = parse_schedule(data, where, errors, time_sign='>= 0', bases=('steps', 'offset'))
+    sched = parse_schedule(data, where, errors, time_sign='>= 0', bases=('steps', 'offset'),
+                           sine=False)
     if sched is None:
         return None
     return sched.points or ((0.0, sched.offset),)

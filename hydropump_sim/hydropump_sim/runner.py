@@ -532,7 +532,12 @@ class Runner:
         """Apply an asked-for reset; True if its state is to be published now."""
         if not self._pending.pop('reset', False):
             return False
-        self._reset()
+        try:
+            self._reset()
+        except IntegrationError as exc:      # a plant that cannot start again (an FMU)
+            self._failed = str(exc)
+            self._log('error', f'{exc}; call ~/reset to try again')
+            return False
         self._failed = None
         self._resumed = True
         return self._reset_out
@@ -574,7 +579,13 @@ class Runner:
         return self._sense('solenoid_current', value)
 
     def _emit(self, sink: Sink) -> None:
-        y = self.sim.outputs()
+        try:
+            y = self.sim.outputs()
+        except IntegrationError as exc:      # a plant that fails to say its outputs (an FMU)
+            with self._cv:
+                self._failed = str(exc)
+            self._log('error', f'{exc}; call ~/reset to restart')
+            return
         self._y = y
         r = self.readout
         self._meter.add(self.sim.t, y)

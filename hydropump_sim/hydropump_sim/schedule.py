@@ -141,8 +141,8 @@ def time_value_pairs(raw: Any, where: str, errors: list[str], *, time_sign: str 
 
 
 def parse_schedule(raw: Any, where: str, errors: list[str], *, units: Sequence[str] = (),
-                   unit: str = '', time_sign: str = '', bases: Sequence[str] = BASES
-                   ) -> Schedule | None:
+                   unit: str = '', time_sign: str = '', bases: Sequence[str] = BASES,
+                   sine: bool = True) -> Schedule | None:
     """A :class:`Schedule` from its YAML form (see the module), else ``None`` with one line
     per problem in ``errors``.
 
@@ -157,6 +157,8 @@ def parse_schedule(raw: Any, where: str, errors: list[str], *, units: Sequence[s
         ``'>= 0'`` where time counts from an experiment's start.
     bases : sequence of str
         The bases this format can run (a plan's controller cannot ramp).
+    sine : bool
+        Whether a sine may add to them (a plan's load steps: no).
     """
     unit = unit or (units[0] if units else '')
     if isinstance(raw, list) and 'steps' in bases:   # the short form of steps
@@ -180,8 +182,12 @@ def parse_schedule(raw: Any, where: str, errors: list[str], *, units: Sequence[s
     if len(given) > 1:
         errors.append(f'{where}: give one of {", ".join(given)}, not both (a sine adds to any)')
         return None
+    if 'sine' in raw and not sine:
+        errors.append(f'{where}.sine: not here; use {", ".join(bases)} (no sine)')
+        return None
     if given and given[0] not in bases:
-        errors.append(f'{where}.{given[0]}: not here; use {", ".join(bases)} (and a sine)')
+        errors.append(f'{where}.{given[0]}: not here; use {", ".join(bases)}'
+                      + (' (and a sine)' if sine else ''))
         return None
     if not given and 'sine' not in raw:
         errors.append(f'{where}: expected one of {", ".join(bases)} (and an optional sine)')
@@ -259,6 +265,9 @@ def _unknown(raw: Mapping, keys: Sequence[str], where: str, errors: list[str]) -
 
 
 def late_changes(schedule: Schedule, duration: float, where: str) -> list[str]:
-    """A line per change of ``schedule`` at or after ``duration`` [s]: it would never act."""
+    """A line per held change of ``schedule`` at or after ``duration`` [s]: it would never
+    act (a ramp's last point may well be the end)."""
+    if schedule.kind != 'steps':
+        return []
     return [f'{where}: the change at {fmt(t)} s is not before the end ({fmt(duration)} s)'
             for t in schedule.change_times if t >= duration]

@@ -3,6 +3,7 @@
 running it alone; the names it needs; a failing step's own message; the simulator's Runner
 publishing what the FMU computes."""
 
+from pathlib import Path
 import shutil
 
 import numpy as np
@@ -122,3 +123,43 @@ def test_a_failing_step_is_the_fmus_own_message(tmp_path, params):
                                          ('der(x)', None), ('1st', None), ('a..b', None)])
 def test_an_output_name_makes_a_topic_or_none(name, topic):
     assert topic_of(name) == topic
+
+
+def test_only_real_variables_meet_the_suite(tmp_path, params):
+    """FMI 2.0 counts value references per type: a Boolean input is left at its start,
+    never written as a Real."""
+    flag = ("        self.enabled = True\n"
+            "        self.register_variable(Boolean('enabled', causality=Fmi2Causality.input,\n"
+            "                                       variability=Fmi2Variability.discrete))\n")
+    source = fmus.PUMP.replace('        self.t = 0.0\n', '        self.t = 0.0\n' + flag, 1) \
+        .replace('Fmi2Variability, Real', 'Fmi2Variability, Real, Boolean')
+    path = fmus.build(tmp_path, 'with_flag', source)
+    sim = FmuSimulator(path, params)
+    try:
+        assert sim.model.info.variables['enabled'].type == 'Boolean'
+        assert sim.model.inputs == ['current']
+        sim.set_input('current', 0.6)
+        for _ in range(5):
+            sim.step()
+        assert sim.outputs()[sim.model.signal_index('line_flow')] > 1.0e-3 * (0.5 - 0.3)
+    finally:
+        sim.close()
+
+
+def test_a_binary_that_does_not_load_is_one_line_and_leaves_nothing(tmp_path, params,
+                                                                    lag_pump, monkeypatch):
+    import zipfile
+    broken = tmp_path / 'broken.fmu'
+    with zipfile.ZipFile(lag_pump) as zin, zipfile.ZipFile(broken, 'w') as zout:
+        for e in zin.infolist():
+            zout.writestr(e, b'not a library' if e.filename.endswith('.so') else zin.read(e))
+    unpacked = []
+    real = fmpy.extract
+    monkeypatch.setattr(fmpy, 'extract', lambda *a, **k: unpacked.append(real(*a, **k))
+                        or unpacked[-1])
+    with pytest.raises(FmuError) as info:
+        FmuSimulator(broken, params)
+    assert len(info.value.lines) == 1
+    assert info.value.lines[0].startswith(f'{broken}: cannot load or instantiate it: ')
+    assert unpacked and not any(Path(d).exists() for d in unpacked)
+    assert Path.cwd().exists()          # FMPy left the process in the library's folder

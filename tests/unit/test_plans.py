@@ -156,7 +156,8 @@ def test_a_plan_file_parses_into_si_experiments(params, tmp_path):
      'experiment 1 (stairs): current.ramp: not here; use steps, staircase, step, offset'),
     ({'current': {'steps': [[0, 0.5], [0.5, 0.6]], 'sine': {'amplitude': 0.1,
                                                            'frequency': 1.0}}},
-     'current.sine: the controller runs a sine of frequency > 0 about a constant offset'),
+     'current.sine: the controller runs a sine of amplitude and frequency > 0 about a '
+     'constant offset'),
     ({'current': {'staircase': {'levels': [0.5, 0.6], 'dwell': 0.001}}},
      "current.staircase.dwell: 0.001 s between levels, shorter than the controller's update "
      'period (0.005 s)'),
@@ -172,6 +173,12 @@ def test_a_plan_file_parses_into_si_experiments(params, tmp_path):
      'experiment 1 (stairs): aperture[0] time = 1 s: at or after the end of the experiment'),
     ({'aperture': [[0.2, 1.5]]}, 'experiment 1 (stairs): aperture[0] value = 1.5'),
     ({'aperture': [0.2, 0.4]}, 'experiment 1 (stairs): aperture: expected [[t, value], ...]'),
+    ({'load_pressure': {'offset': 1.0e7, 'sine': {'amplitude': 5.0e6, 'frequency': 1.0}}},
+     'experiment 1 (stairs): load_pressure.sine: not here; use steps, offset (no sine)'),
+    ({'current': {'offset': 0.5, 'sine': {'amplitude': -0.05, 'frequency': 1.0}}},
+     'current.sine: the controller runs a sine of amplitude and frequency > 0'),
+    ({'current': {'shape': [1], 'levels': [1], 'dwell': 1.0}},
+     'experiment 1 (stairs): current.shape = [1]: expected staircase or sine'),
     ({'name': 'a/b'}, "experiment 1 (a/b): name = 'a/b': use letters, digits, _ . -"),
     ({'name': 'logs'}, "name = 'logs': taken by the folder of the nodes' logs"),
     ({'seed': -3}, 'experiment 1 (stairs): seed = -3: expected an integer in [0, 2147483647]'),

@@ -135,6 +135,33 @@ def test_a_plan_in_the_spelling_of_before_still_runs_with_a_note(params):
     for a, b in zip(before.experiments, today.experiments, strict=True):
         np.testing.assert_array_equal(held_inputs(a, params).current,
                                       held_inputs(b, params).current)
+    # ... and each is what the old spelling said: 40 then 60 % of eq. 10's range, 0.5 s
+    # each; 0.5 A + 0.05 A sin(2 pi 2 t), sampled at the controller's 5 ms updates.
+    lo, hi = params.current_range
+    np.testing.assert_allclose(held_inputs(before.experiments[0], params).current,
+                               np.repeat([lo + 0.4 * (hi - lo), lo + 0.6 * (hi - lo)], 500),
+                               atol=1e-12)
+    tk = np.floor(np.arange(1000) * 1e-3 / 0.005 + 1e-6) * 0.005
+    np.testing.assert_allclose(held_inputs(before.experiments[1], params).current,
+                               0.5 + 0.05 * np.sin(2 * np.pi * 2.0 * tk), atol=1e-12)
     with pytest.raises(ValueError) as info:
         parse_plan([{**old[0], 'current': {**old[0]['current'], 'frequency': 1.0}}], params)
     assert 'current.frequency: belongs to a sine, not a staircase' in str(info.value)
+
+
+def test_a_sweep_with_step_metrics_needs_a_current_that_steps(params, tmp_path):
+    from hydropump_ctrl.sweep.spec import SweepError
+    rest = {'params': str(ROOT / 'config' / 'pump.yaml'), 'outputs': ['step'],
+            'grid': {'parameters': {'line.V_l': [params.line.V_l]}}}
+    for current in (0.5, {'ramp': [[0.0, 0.3], [1.0, 0.6]]},
+                    {'staircase': {'levels': [0.4], 'dwell': 0.5}}):
+        with pytest.raises(SweepError) as info:
+            sweep_from_dict({'experiment': {'duration': 1.0, 'current': current}, **rest},
+                            tmp_path)
+        assert info.value.lines == ['outputs: step needs a current that steps (steps, a '
+                                    'staircase of two levels or more, or step: {from, to, '
+                                    'at})'], current
+    # A ramp may end where the run ends: no change of it is "late".
+    ok = sweep_from_dict({'experiment': {'duration': 1.0, 'current': {
+        'ramp': [[0.0, 0.3], [1.0, 0.6]]}}, **rest, 'outputs': [{'final': 'q_l'}]}, tmp_path)
+    assert ok.experiment.step_times == ()

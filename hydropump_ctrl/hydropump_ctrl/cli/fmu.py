@@ -63,5 +63,6 @@ def _check(path: str) -> int:
             rng = f' in [{v.min:g}, {v.max:g}]' if v.min is not None and v.max is not None \
                 else ''
             start = f', start {v.start:g}' if v.start is not None else ''
-            print(f'    {name}{unit}{rng}{start}')
+            kind = '' if v.type == 'Real' else f' ({v.type})'
+            print(f'    {name}{kind}{unit}{rng}{start}')
     return 0

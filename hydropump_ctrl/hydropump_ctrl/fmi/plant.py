@@ -19,11 +19,13 @@ A step that fails stops the simulator with the FMU's own message.
 from __future__ import annotations
 
 import math
+import os
 import re
 import shutil
 
 import numpy as np
 
+from hydropump_sim.errors import HydropumpError
 from hydropump_sim.measure import SIGNALS, Topic
 from hydropump_sim.simulate import IntegrationError
 from hydropump_sim.system import Model
@@ -60,12 +62,13 @@ class FmuModel(Model):
         self.name = info.model_identifier
         self.fluid = params.fluid
         v = info.variables
-        self.inputs = info.of('input')
+        # Value references count per type in FMI 2.0: only the Real ones meet the suite.
+        self.inputs = [n for n in info.of('input') if v[n].type == 'Real']
         self.input_units = [v[n].unit for n in self.inputs]
         self.input_ranges = [(-math.inf if v[n].min is None else v[n].min,
                               math.inf if v[n].max is None else v[n].max) for n in self.inputs]
         self.u0 = np.array([v[n].start or 0.0 for n in self.inputs], dtype=float)
-        self.outputs = info.of('output')
+        self.outputs = [n for n in info.of('output') if v[n].type == 'Real']
         own = [f'pump.{k}' for k in PUMP_SIGNALS if f'pump.{k}' not in self.outputs]
         self.signals = self.outputs + own
         self.signal_units = [v[n].unit for n in self.outputs] + [''] * len(own)
@@ -107,15 +110,15 @@ class FmuModel(Model):
 def check_plant(info: FmuInfo) -> None:
     """:class:`FmuError` unless the FMU can be the plant: a current input, one measured
     signal out."""
-    names = info.of('input')
+    names = [n for n in info.of('input') if info.variables[n].type == 'Real']
+    outputs = [n for n in info.of('output') if info.variables[n].type == 'Real']
     problems = []
     if not any(n in names for n in PLANT_INPUTS['current']):
         problems.append(f'{info.path}: no input current or pump.current (the solenoid current '
                         f'[A] the controller commands; its inputs: {", ".join(names) or "none"})')
-    if not any(n in SIGNALS for n in info.of('output')):
+    if not any(n in SIGNALS for n in outputs):
         problems.append(f'{info.path}: no output named after a measured signal of the suite '
-                        f'({", ".join(SIGNALS)}); its outputs: '
-                        f'{", ".join(info.of("output")) or "none"}')
+                        f'({", ".join(SIGNALS)}); its outputs: {", ".join(outputs) or "none"}')
     if problems:
         raise FmuError(problems)
 
@@ -143,30 +146,45 @@ class FmuSimulator:
         self.stats = np.zeros(2, dtype=np.int64)
         self.reset_note = None
         self.messages: list[str] = []
+        self._fmu, self._instantiated, self._started, self._fmu_t = None, False, False, 0.0
         self._where = fmpy.extract(str(info.path))
-        callbacks = fmi2CallbackFunctions()
-        callbacks.logger = fmi2CallbackLoggerTYPE(self._logged)
-        callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(fmpy.calloc)
-        callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(fmpy.free)
-        try:
-            from ctypes import byref
-
-            from fmpy.logging import addLoggerProxy
-            addLoggerProxy(byref(callbacks))
-        except Exception:      # messages then arrive unformatted: still worth keeping
-            pass
-        self._callbacks = callbacks
         md = info.description
         self._vr = {v.name: v.valueReference for v in md.modelVariables}
         self._in = [self._vr[n] for n in self.model.inputs]
         self._out = [self._vr[n] for n in self.model.outputs]
-        self._fmu = FMU2Slave(guid=md.guid, unzipDirectory=self._where,
-                              modelIdentifier=info.model_identifier, instanceName='simulator')
-        self._fmu.instantiate(callbacks=callbacks, loggingOn=True)
-        self._started = False
-        self._fmu_t = 0.0
         self.y = np.zeros(len(self.model.signals))
-        self.reset()
+        try:
+            callbacks = fmi2CallbackFunctions()
+            callbacks.logger = fmi2CallbackLoggerTYPE(self._logged)
+            callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(fmpy.calloc)
+            callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(fmpy.free)
+            try:
+                from ctypes import byref
+
+                from fmpy.logging import addLoggerProxy
+                addLoggerProxy(byref(callbacks))
+            except Exception:   # messages then arrive unformatted: still worth keeping
+                pass
+            self._callbacks = callbacks
+            # FMPy loads the library from its folder and does not come back when loading
+            # fails: the process's folder is put back here whatever happens.
+            cwd = os.getcwd()
+            try:
+                self._fmu = FMU2Slave(guid=md.guid, unzipDirectory=self._where,
+                                      modelIdentifier=info.model_identifier,
+                                      instanceName='simulator')
+            finally:
+                os.chdir(cwd)
+            self._fmu.instantiate(callbacks=callbacks, loggingOn=True)
+            self._instantiated = True
+            self.reset()
+        except HydropumpError:
+            self.close()
+            raise
+        except Exception as exc:   # FMPy's own: a binary that does not load or instantiate
+            self.close()
+            said = '; '.join(m for m in self.messages if m) or str(exc)
+            raise FmuError([f'{info.path}: cannot load or instantiate it: {said}']) from None
 
     @property
     def params(self):
@@ -175,6 +193,11 @@ class FmuSimulator:
     def _logged(self, env, instance, status, category, message):
         text = message.decode(errors='replace') if isinstance(message, bytes) else str(message)
         self.messages = (self.messages + [text])[-20:]
+
+    def _live(self):
+        if self._fmu is None:
+            raise IntegrationError('the FMU is closed')
+        return self._fmu
 
     def _call(self, what: str, fn, *args, **kwargs):
         try:
@@ -191,7 +214,7 @@ class FmuSimulator:
             self.u = self.model.u0.copy()
         for name, v in (inputs or {}).items():
             self.set_input(name, v)
-        f = self._fmu
+        f = self._live()
         if self._started:
             self._call('fmi2Reset', f.reset)
         self._call('fmi2SetupExperiment', f.setupExperiment, startTime=0.0)
@@ -218,7 +241,7 @@ class FmuSimulator:
     def step(self) -> None:
         """One increment of the FMU: the held inputs set, ``fmi2DoStep`` over ``dt``
         (its own clock runs on from its reset, whatever jumps the node's makes)."""
-        f = self._fmu
+        f = self._live()
         if self._in:
             self._call('fmi2SetReal', f.setReal, self._in, list(self.u))
         self._call('fmi2DoStep', f.doStep, currentCommunicationPoint=self._fmu_t,
@@ -234,19 +257,28 @@ class FmuSimulator:
         m = self.model
         n = len(m.outputs)
         if self._out:
+            f = self._live()
             if self._in:
-                self._call('fmi2SetReal', self._fmu.setReal, self._in, list(self.u))
-            self.y[:n] = self._call('fmi2GetReal', self._fmu.getReal, self._out)
+                self._call('fmi2SetReal', f.setReal, self._in, list(self.u))
+            self.y[:n] = self._call('fmi2GetReal', f.getReal, self._out)
         for j, name in enumerate(m.signals[n:], n):
             src = PUMP_SIGNALS[name.split('.', 1)[1]]
             self.y[j] = self.y[m.outputs.index(src)] if src in m.outputs else 0.0
         return self.y
 
     def close(self) -> None:
-        """The FMU ended and its unpacked files removed."""
-        try:
-            self._fmu.terminate()
-            self._fmu.freeInstance()
-        except Exception:        # an FMU that failed may refuse to end: its files still go
-            pass
-        shutil.rmtree(self._where, ignore_errors=True)
+        """The FMU ended and its unpacked files removed (again: nothing)."""
+        f, self._fmu = self._fmu, None
+        if f is not None:
+            try:
+                if self._instantiated:
+                    if self._started:
+                        f.terminate()
+                    f.freeInstance()
+                else:
+                    f.freeLibrary()
+            except Exception:    # an FMU that failed may refuse to end: its files still go
+                pass
+        if self._where:
+            shutil.rmtree(self._where, ignore_errors=True)
+            self._where = None

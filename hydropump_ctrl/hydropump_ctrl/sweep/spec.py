@@ -209,7 +209,8 @@ def _current(block: Any, duration: float, plant: Params, errors: list[str]):
         errors.extend(late + [f'{where}: level {fmt(v)} outside {fmt(lo)}..{fmt(hi)}{unit}'
                               for v in bad[:1]])
         return None, ()
-    return cur.in_amperes(plant), cur.change_times
+    # Step metrics judge held steps: a ramp's break points are none.
+    return cur.in_amperes(plant), cur.change_times if cur.kind == 'steps' else ()
 
 
 def _experiment(doc: Any, base: Path, plant: Params | None, errors: list[str]):
@@ -519,6 +520,9 @@ def sweep_from_dict(doc: Mapping, base: Path = Path('.'), source: str = '') -> S
     if plant is None and 'params' not in doc:
         errors.append('params: missing (the plant file, e.g. config/pump.yaml)')
     outputs = _outputs(doc.get('outputs'), errors)
+    if experiment is not None and not experiment.step_times and ('step', None) in outputs:
+        errors.append('outputs: step needs a current that steps (steps, a staircase of two '
+                      'levels or more, or step: {from, to, at})')
     keep = doc.get('keep_relations', True)
     if not isinstance(keep, bool):
         errors.append(f'keep_relations = {keep!r}: expected true or false')

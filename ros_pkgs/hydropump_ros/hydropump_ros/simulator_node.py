@@ -168,7 +168,7 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         self.params = params
         self.cfg = cfg
         if cfg.fmu_file:
-            return self._configure_fmu(d, cfg, profile, sensors, overrides)
+            return self._configure_fmu(d, cfg, sensors, overrides)
         try:
             circuit = self._circuit(cfg.circuit_sets)
         except HydropumpError as exc:
@@ -201,7 +201,7 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         self.runner = Runner(plant, cfg, profile=SensorProfile.from_config(sensors, overrides),
                              scenario=scenario, log=self._log)
 
-    def _configure_fmu(self, d, cfg, profile, sensors, overrides) -> None:
+    def _configure_fmu(self, d, cfg, sensors, overrides) -> None:
         """A user's FMU as the plant (hydropump_ctrl.fmi.plant): its parameters as
         read-only ``fmu_parameters.<name>``; a circuit file or circuit_sets beside it are
         refused."""
@@ -213,6 +213,14 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
             plant = FmuSimulator(cfg.fmu_file, self.params, cfg.dt)
         except HydropumpError as exc:
             raise bridge.StartupError(exc.lines or [str(exc)]) from None
+        try:
+            self._fmu_node(d, cfg, plant, sensors, overrides)
+        except BaseException:
+            plant.close()
+            raise
+
+    def _fmu_node(self, d, cfg, plant, sensors, overrides) -> None:
+        """The rest of the start on an FMU: its parameters, the scenario, the runner."""
         self._inputs = {}
         d.finish()
         from rcl_interfaces.msg import ParameterDescriptor
@@ -228,12 +236,14 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
                 scenario = load_scenario(cfg.scenario_file, [*SCENARIO_INPUTS,
                                                              *plant.model.all_inputs()]).inputs
             except ScenarioError as exc:
-                plant.close()
                 raise bridge.StartupError([f'{cfg.scenario_file}: {ln}' for ln in exc.lines]) \
                     from None
         self.schema_specs = d.specs
-        self.runner = Runner(plant, cfg, profile=SensorProfile.from_config(sensors, overrides),
-                             scenario=scenario, log=self._log)
+        try:
+            self.runner = Runner(plant, cfg, profile=SensorProfile.from_config(sensors, overrides),
+                                 scenario=scenario, log=self._log)
+        except HydropumpError as exc:
+            raise bridge.StartupError(exc.lines or [str(exc)]) from None
 
     def _circuit(self, sets: str):
         """The circuit file with ``circuit_sets``, on the node's plant parameters."""
@@ -416,7 +426,8 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         self.runner.stop()
         self._thread.join(timeout=5.0)
         self._io.close()
-        if hasattr(self.runner.sim, 'close'):     # a user's FMU: ended, its files removed
+        # A user's FMU: ended and its files removed, once nothing steps it any more.
+        if hasattr(self.runner.sim, 'close') and not self._thread.is_alive():
             self.runner.sim.close()
 
     # ---- publishing (stepping thread) ----------------------------------------------------
