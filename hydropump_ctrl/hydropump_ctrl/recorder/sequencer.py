@@ -68,6 +68,12 @@ class _Topic:
         self.recent: deque = deque(maxlen=9)  # its latest log times, for its period
 
 
+#: Wall seconds a topic one period short of a stop's instant is waited for: the message at
+#: the instant is published just after its /clock, milliseconds later even on a loaded
+#: machine.
+EDGE_GRACE = 0.1
+
+
 class Sequencer:
     """Log times and release order of a recording (see the module).
 
@@ -211,7 +217,9 @@ class Sequencer:
         """The topics that have not delivered up to ``until_ns`` (a stop's last instant)
         and should, with their latest log time (``None``: nothing yet). A topic is done
         once its latest message is at ``until_ns`` or less than one of its periods before
-        it (the next would lie after it); one that sent nothing in the ``idle_timeout``
+        it (the next would lie after it), or exactly one period before it and silent for
+        :data:`EDGE_GRACE` s since the stop (the next would be the stop's own); one that sent
+        nothing in the ``idle_timeout``
         before ``since`` (the stop's request, steady clock) had ended before the stop; one
         that sent nothing at all is done after ``quiet`` s of silence from ``since``. The
         recorder's own stalls do not count as silence. Sparse topics are never behind."""
@@ -229,7 +237,14 @@ class Sequencer:
                     out[t.name] = None
                 continue
             period = self.period(t.name) or 0
-            if mark < until_ns - period and t.last_rx >= since - self._idle:
+            if t.last_rx < since - self._idle:
+                continue
+            if mark < until_ns - period:
+                out[t.name] = mark
+            elif mark < until_ns and now - max(t.last_rx, since) < EDGE_GRACE:
+                # One period short: a message at the stop instant itself may still be on its
+                # way (a simulator publishes its pausing instant's measurements after that
+                # instant's /clock); a topic published before each increment has none there.
                 out[t.name] = mark
         return out
 
