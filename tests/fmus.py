@@ -1,7 +1,9 @@
 """FMUs this suite did not write, for the FMI tests: small models written here with PythonFMU's
 own classes (none of the suite's code), built into FMUs in a test's folder."""
 
+from contextlib import contextmanager
 from pathlib import Path
+import shutil
 import sys
 import textwrap
 
@@ -98,3 +100,40 @@ def lag_pump(where: Path, name: str = 'lag_pump', fail_after: float = 0.0) -> Pa
     """The first-order pump, failing past ``fail_after`` [s] (0: never)."""
     return build(where, name, PUMP.replace('self.fail_after = 0.0',
                                            f'self.fail_after = {fail_after!r}'))
+
+
+@contextmanager
+def opened(path, name: str = 'test'):
+    """The FMU at ``path`` unpacked and instantiated by FMPy alone, as a master does, with
+    its value references by name: ``(fmu, vr)``; freed and its files removed after."""
+    import fmpy
+    from fmpy.fmi2 import FMU2Slave
+    md = fmpy.read_model_description(str(path))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    where = fmpy.extract(str(path))
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=where,
+                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
+    try:
+        fmu.instantiate()
+        fmu.setupExperiment(startTime=0.0)
+        yield fmu, vr
+    finally:
+        fmu.freeInstance()
+        shutil.rmtree(where, ignore_errors=True)
+
+
+def alone(path, currents, dt: float = 1.0e-3, output: str = 'line_flow'):
+    """A pump FMU run by FMPy alone: ``currents[k]`` held over step ``k`` (the first also
+    at the start); ``output`` at the start, then after each step."""
+    import numpy as np
+    with opened(path, 'alone') as (fmu, vr):
+        fmu.enterInitializationMode()
+        fmu.setReal([vr['current']], [float(currents[0])])
+        fmu.exitInitializationMode()
+        out = [fmu.getReal([vr[output]])[0]]
+        for k, i in enumerate(currents):
+            fmu.setReal([vr['current']], [float(i)])
+            fmu.doStep(currentCommunicationPoint=k * dt, communicationStepSize=dt)
+            out.append(fmu.getReal([vr[output]])[0])
+        fmu.terminate()
+    return np.array(out)

@@ -4,7 +4,6 @@ what the node publishes is compared with FMPy running the same FMU alone on the 
 currents. Bad FMUs stop the node at start-up with one line; a step the FMU fails stops the
 stepping with the FMU's own message."""
 
-import shutil
 
 import numpy as np
 import pytest
@@ -28,30 +27,8 @@ def schedule(t):
 def _alone(path, n, dt=1.0e-3, period=0.005):
     """The FMU run by FMPy alone: the current of each control instant held for its period;
     the line flow at the start, then after each step."""
-    from fmpy.fmi2 import FMU2Slave
-    md = fmpy.read_model_description(str(path))
-    vr = {v.name: v.valueReference for v in md.modelVariables}
-    where = fmpy.extract(str(path))
-    fmu = FMU2Slave(guid=md.guid, unzipDirectory=where,
-                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName='alone')
-    out = []
-    try:
-        fmu.instantiate()
-        fmu.setupExperiment(startTime=0.0)
-        fmu.enterInitializationMode()
-        fmu.setReal([vr['current']], [schedule(0.0)])
-        fmu.exitInitializationMode()
-        out.append(fmu.getReal([vr['line_flow']])[0])
-        for k in range(n):
-            t = k * dt
-            fmu.setReal([vr['current']], [schedule(np.floor(t / period + 1e-9) * period)])
-            fmu.doStep(currentCommunicationPoint=t, communicationStepSize=dt)
-            out.append(fmu.getReal([vr['line_flow']])[0])
-        fmu.terminate()
-    finally:
-        fmu.freeInstance()
-        shutil.rmtree(where, ignore_errors=True)
-    return np.array(out)
+    return fmus.alone(path, [schedule(np.floor(k * dt / period + 1e-9) * period)
+                             for k in range(n)], dt)
 
 
 def test_the_simulator_publishes_what_the_fmu_computes(nodes, test_node, lag_pump):

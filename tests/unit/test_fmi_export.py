@@ -3,7 +3,6 @@ another tool would: its model description (units, ranges, FMPy's validation), ev
 against ``simulate()`` stepped as the nodes step, a parameter set through FMI against the
 same value set in the library, and the one-line refusals."""
 
-import shutil
 import subprocess
 import sys
 
@@ -15,10 +14,10 @@ from hydropump_sim.circuit import load_circuit
 from hydropump_sim.measure import SIGNALS
 from hydropump_sim.simulate import IntegratorConfig, simulate
 
+from .. import fmus
 from ..conftest import ROOT
 
 fmpy = pytest.importorskip('fmpy')
-from fmpy.fmi2 import FMU2Slave  # noqa: E402
 from fmpy.validation import validate_fmu  # noqa: E402
 
 CIRCUITS = ROOT / 'config' / 'circuits'
@@ -31,14 +30,8 @@ def _run(path, inputs, params=None, n=N):
     step to t_k+1, then the inputs of t_k+1 set before its outputs are read. ``inputs``:
     name -> array of n + 1 values; returns the outputs' names and values at t_0..t_n."""
     md = fmpy.read_model_description(str(path))
-    vr = {v.name: v.valueReference for v in md.modelVariables}
     outs = [v.name for v in md.modelVariables if v.causality == 'output']
-    where = fmpy.extract(str(path))
-    fmu = FMU2Slave(guid=md.guid, unzipDirectory=where,
-                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName='test')
-    try:
-        fmu.instantiate()
-        fmu.setupExperiment(startTime=0.0)
+    with fmus.opened(path) as (fmu, vr):
         fmu.enterInitializationMode()
         for name, value in (params or {}).items():
             fmu.setReal([vr[name]], [value])
@@ -54,9 +47,6 @@ def _run(path, inputs, params=None, n=N):
                 fmu.setReal([vr[name]], [float(u[k + 1])])
             rows.append(fmu.getReal([vr[o] for o in outs]))
         fmu.terminate()
-    finally:
-        fmu.freeInstance()
-        shutil.rmtree(where, ignore_errors=True)
     return outs, np.array(rows)
 
 
@@ -142,20 +132,11 @@ def test_fmpy_runs_the_default_experiment(exported):
 
 
 def test_a_step_the_fmu_cannot_take_is_refused(exported):
-    md = fmpy.read_model_description(str(exported['paper'].path))
-    where = fmpy.extract(str(exported['paper'].path))
-    fmu = FMU2Slave(guid=md.guid, unzipDirectory=where,
-                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName='odd')
-    try:
-        fmu.instantiate()
-        fmu.setupExperiment(startTime=0.0)
+    with fmus.opened(exported['paper'].path, 'odd') as (fmu, _):
         fmu.enterInitializationMode()
         fmu.exitInitializationMode()
         with pytest.raises(Exception, match='fmi2DoStep'):
             fmu.doStep(currentCommunicationPoint=0.0, communicationStepSize=1.5e-3)
-    finally:
-        fmu.freeInstance()
-        shutil.rmtree(where, ignore_errors=True)
 
 
 @pytest.mark.parametrize('argv, line', [

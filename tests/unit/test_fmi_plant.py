@@ -4,7 +4,6 @@ running it alone; the names it needs; a failing step's own message; the simulato
 publishing what the FMU computes."""
 
 from pathlib import Path
-import shutil
 
 import numpy as np
 import pytest
@@ -27,27 +26,7 @@ def lag_pump(tmp_path_factory):
 
 def _alone(path, currents, dt=1.0e-3):
     """FMPy alone: each current held over its step, the line flow after each."""
-    from fmpy.fmi2 import FMU2Slave
-    md = fmpy.read_model_description(str(path))
-    vr = {v.name: v.valueReference for v in md.modelVariables}
-    where = fmpy.extract(str(path))
-    fmu = FMU2Slave(guid=md.guid, unzipDirectory=where,
-                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName='alone')
-    out = []
-    try:
-        fmu.instantiate()
-        fmu.setupExperiment(startTime=0.0)
-        fmu.enterInitializationMode()
-        fmu.setReal([vr['current']], [currents[0]])
-        fmu.exitInitializationMode()
-        for k, i in enumerate(currents):
-            fmu.setReal([vr['current']], [i])
-            fmu.doStep(currentCommunicationPoint=k * dt, communicationStepSize=dt)
-            out.append(fmu.getReal([vr['line_flow']])[0])
-    finally:
-        fmu.freeInstance()
-        shutil.rmtree(where, ignore_errors=True)
-    return np.array(out)
+    return fmus.alone(path, currents, dt)[1:]
 
 
 def test_the_stepper_is_the_fmu_run_alone(lag_pump, params):

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-import os
 from pathlib import Path
 import shutil
 import tempfile
@@ -21,6 +20,7 @@ import yaml
 
 from hydropump_sim.circuit import CircuitError, default_circuit_path, load_circuit
 from hydropump_sim.errors import HydropumpError
+from hydropump_sim.files import replacing
 from hydropump_sim.schema import ParamError, read_yaml
 
 #: The model script copied into every FMU.
@@ -90,7 +90,12 @@ def export_fmu(out: str | Path, circuit: str | Path | None = None, *,
     from pythonfmu.builder import FmuBuilder
 
     from .hydropump_fmu import parameters
-    with tempfile.TemporaryDirectory(prefix='hydropump_fmu_') as tmp:
+    problems: tuple = ()
+    # Whole or not at all (hydropump_sim.files): a refused FMU or a full disk leaves ``out``
+    # as it was; an OSError anywhere here is one line.
+    with replacing(out, 'FMU') as built, \
+            tempfile.TemporaryDirectory(prefix='hydropump_fmu_') as tmp:
+        out.parent.mkdir(parents=True, exist_ok=True)
         data = Path(tmp) / 'data'
         data.mkdir()
         shutil.copyfile(circuit, data / 'circuit.yaml')
@@ -99,22 +104,13 @@ def export_fmu(out: str | Path, circuit: str | Path | None = None, *,
         (data / MANIFEST).write_text(yaml.safe_dump(
             {'sets': sets, 'step': float(step), 'stop_time': float(stop_time),
              'circuit': c.name}))
-        built = Path(tmp) / 'hydropump.fmu'
         FmuBuilder.build_FMU(SCRIPT, dest=built, project_files=sorted(data.iterdir()),
                              needsExecutionTool='true')
-        problems = ()
         if validate:
             from fmpy.validation import validate_fmu
             problems = tuple(validate_fmu(str(built)))
             if problems:
                 raise FmuError([f'{out}: FMPy validation: {p}' for p in problems])
-        try:
-            out.parent.mkdir(parents=True, exist_ok=True)
-            staged = out.with_name(f'.{out.name}.tmp')
-            shutil.copyfile(built, staged)
-            os.replace(staged, out)
-        except OSError as exc:
-            raise FmuError([f'{out}: cannot write: {exc.strerror or exc}']) from None
     measured = c.measured()
     from hydropump_sim.measure import SIGNALS
     return Exported(out, tuple(c.inputs), tuple(n for n in SIGNALS if n in measured),

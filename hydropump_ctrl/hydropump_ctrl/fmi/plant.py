@@ -27,7 +27,7 @@ import numpy as np
 
 from hydropump_sim.errors import HydropumpError
 from hydropump_sim.measure import SIGNALS, Topic
-from hydropump_sim.simulate import IntegrationError
+from hydropump_sim.simulate import IntegrationError, Simulator
 from hydropump_sim.system import Model
 
 from .export import FmuError
@@ -227,16 +227,9 @@ class FmuSimulator:
         if not keep_time:
             self.t, self.steps = 0.0, 0
 
-    def take_inputs(self, other) -> None:
-        mine, theirs = self.model.inputs, other.model.inputs
-        for k, name in enumerate(mine):
-            if name in theirs:
-                self.u[k] = other.u[theirs.index(name)]
-
-    def set_input(self, name: str, value: float) -> None:
-        k = self.model.input_index(name)
-        lo, hi = self.model.input_ranges[k]
-        self.u[k] = min(max(float(value), lo), hi)
+    # The inputs by name, clamped to their ranges, as the simulator holds a model's.
+    take_inputs = Simulator.take_inputs
+    set_input = Simulator.set_input
 
     def step(self) -> None:
         """One increment of the FMU: the held inputs set, ``fmi2DoStep`` over ``dt``

@@ -189,14 +189,7 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         except HydropumpError as exc:
             raise bridge.StartupError([f'{path}: {ln}' for ln in exc.lines or [str(exc)]]) \
                 from None
-        scenario = None
-        if cfg.scenario_file:
-            try:
-                scenario = load_scenario(cfg.scenario_file, [*SCENARIO_INPUTS,
-                                                             *circuit.all_inputs()]).inputs
-            except ScenarioError as exc:
-                raise bridge.StartupError([f'{cfg.scenario_file}: {ln}' for ln in exc.lines]) \
-                    from None
+        scenario = self._scenario(cfg, circuit)
         self.schema_specs = d.specs
         self.runner = Runner(plant, cfg, profile=SensorProfile.from_config(sensors, overrides),
                              scenario=scenario, log=self._log)
@@ -230,20 +223,26 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
                 self.declare_parameter(key, float(value), ParameterDescriptor(
                     read_only=True, description=f'the FMU parameter {name} '
                     f'[{plant.model.info.variables[name].unit or "-"}]'))
-        scenario = None
-        if cfg.scenario_file:
-            try:
-                scenario = load_scenario(cfg.scenario_file, [*SCENARIO_INPUTS,
-                                                             *plant.model.all_inputs()]).inputs
-            except ScenarioError as exc:
-                raise bridge.StartupError([f'{cfg.scenario_file}: {ln}' for ln in exc.lines]) \
-                    from None
+        scenario = self._scenario(cfg, plant.model)
         self.schema_specs = d.specs
         try:
             self.runner = Runner(plant, cfg, profile=SensorProfile.from_config(sensors, overrides),
                                  scenario=scenario, log=self._log)
         except HydropumpError as exc:
             raise bridge.StartupError(exc.lines or [str(exc)]) from None
+
+    @staticmethod
+    def _scenario(cfg, model):
+        """The inputs ``scenario_file`` schedules (the operating point's and ``model``'s own),
+        or ``None``."""
+        if not cfg.scenario_file:
+            return None
+        try:
+            return load_scenario(cfg.scenario_file, [*SCENARIO_INPUTS,
+                                                     *model.all_inputs()]).inputs
+        except ScenarioError as exc:
+            raise bridge.StartupError([f'{cfg.scenario_file}: {ln}' for ln in exc.lines]) \
+                from None
 
     def _circuit(self, sets: str):
         """The circuit file with ``circuit_sets``, on the node's plant parameters."""
