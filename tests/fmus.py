@@ -35,9 +35,13 @@ ORIFICE = textwrap.dedent("""
 
 
 # A pump as a user might model it elsewhere: the flow follows the current through a first
-# lag, the line pressure rises with the flow over the load's resistance; it fails on purpose
-# past ``fail_after`` [s] (0: never), saying why.
+# lag of gain ``gain`` [m^3/s/A] above 0.3 A and time constant ``tau`` [s] (ten explicit Euler
+# steps per step), the line pressure rises with the flow over the load's resistance; its
+# outputs carry a seeded Gaussian noise of ``noise`` times their own scale (0: none); it
+# fails on purpose past ``fail_after`` [s] (0: never), saying why.
 PUMP = textwrap.dedent("""
+    import random
+
     from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Real
     from pythonfmu.enums import Fmi2Status
 
@@ -49,24 +53,34 @@ PUMP = textwrap.dedent("""
             self.line_flow = 0.0
             self.line_pressure = 0.0
             self.tau = 0.02
+            self.gain = 1.0e-3
+            self.noise = 0.0
             self.fail_after = 0.0
-            self.t = 0.0
+            self.q = 0.0
+            self.rng = random.Random(1)
             for name, causality, variability in (
                     ('current', Fmi2Causality.input, Fmi2Variability.continuous),
                     ('line_flow', Fmi2Causality.output, Fmi2Variability.continuous),
                     ('line_pressure', Fmi2Causality.output, Fmi2Variability.continuous),
                     ('tau', Fmi2Causality.parameter, Fmi2Variability.fixed),
+                    ('gain', Fmi2Causality.parameter, Fmi2Variability.fixed),
+                    ('noise', Fmi2Causality.parameter, Fmi2Variability.fixed),
                     ('fail_after', Fmi2Causality.parameter, Fmi2Variability.fixed)):
                 self.register_variable(Real(name, causality=causality,
                                             variability=variability))
 
         def _target(self):
-            return 1.0e-3 * (self.current - 0.3)
+            return self.gain * (self.current - 0.3)
+
+        def _publish(self):
+            n = self.noise
+            self.line_flow = self.q + n * 1.0e-4 * self.rng.gauss(0.0, 1.0)
+            self.line_pressure = 2.0e6 + 8.0e9 * self.q + n * 1.0e5 * self.rng.gauss(0.0, 1.0)
 
         def exit_initialization_mode(self):
-            self.line_flow = self._target()
-            self.line_pressure = 2.0e6 + 8.0e9 * self.line_flow
-            self.t = 0.0
+            self.q = self._target()
+            self.rng = random.Random(1)
+            self._publish()
 
         def do_step(self, current_time, step_size):
             if self.fail_after and current_time >= self.fail_after:
@@ -75,13 +89,10 @@ PUMP = textwrap.dedent("""
             n = 10
             h = step_size / n
             for _ in range(n):
-                self.line_flow += h * (self._target() - self.line_flow) / self.tau
-            self.line_pressure = 2.0e6 + 8.0e9 * self.line_flow
-            self.t = current_time + step_size
+                self.q += h * (self._target() - self.q) / self.tau
+            self._publish()
             return True
     """)
-
-
 
 
 def build(where: Path, name: str, source: str) -> Path:

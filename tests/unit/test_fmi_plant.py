@@ -36,7 +36,8 @@ def test_the_stepper_is_the_fmu_run_alone(lag_pump, params):
         assert sim.model.plant_inputs() == {'current': 'current'}
         assert sim.model.measured() == {'line_flow': 'line_flow',
                                         'line_pressure': 'line_pressure'}
-        assert sim.model.parameters() == {'tau': 0.02, 'fail_after': 0.0}
+        assert sim.model.parameters() == {'tau': 0.02, 'gain': 1.0e-3, 'noise': 0.0,
+                                          'fail_after': 0.0}
         flow = []
         for i in currents:
             sim.set_input('current', i)
@@ -48,6 +49,28 @@ def test_the_stepper_is_the_fmu_run_alone(lag_pump, params):
         sim.reset()
         assert sim.t == 0.0
         assert sim.outputs()[0] == pytest.approx(1.0e-3 * (0.62 - 0.3))
+    finally:
+        sim.close()
+
+
+def test_parameters_set_before_the_initialisation_change_the_run(lag_pump, params):
+    """A parameter set by name applies from the next reset (FMI 2.0 sets them before the
+    initialisation): the FMU starts settled at its closed-form flow, gain (I - 0.3)."""
+    sim = FmuSimulator(lag_pump, params, 1.0e-3)
+    try:
+        q = sim.model.signal_index('line_flow')
+        sim.reset({'current': 0.7})
+        assert sim.outputs()[q] == pytest.approx(1.0e-3 * 0.4, rel=1e-12)
+        sim.set_parameters({'gain': 2.5e-3})
+        assert sim.outputs()[q] == pytest.approx(1.0e-3 * 0.4, rel=1e-12)   # not yet
+        sim.reset()
+        assert sim.outputs()[q] == pytest.approx(2.5e-3 * 0.4, rel=1e-12)
+        sim.step()
+        assert sim.outputs()[q] == pytest.approx(2.5e-3 * 0.4, rel=1e-12)   # settled
+        with pytest.raises(FmuError) as err:
+            sim.set_parameters({'gian': 1.0})
+        assert err.value.lines == ['gian: unknown real parameter of lag_pump.fmu (did you '
+                                   'mean gain?)']
     finally:
         sim.close()
 
@@ -110,7 +133,7 @@ def test_only_real_variables_meet_the_suite(tmp_path, params):
     flag = ("        self.enabled = True\n"
             "        self.register_variable(Boolean('enabled', causality=Fmi2Causality.input,\n"
             "                                       variability=Fmi2Variability.discrete))\n")
-    source = fmus.PUMP.replace('        self.t = 0.0\n', '        self.t = 0.0\n' + flag, 1) \
+    source = fmus.PUMP.replace('        self.q = 0.0\n', '        self.q = 0.0\n' + flag, 1) \
         .replace('Fmi2Variability, Real', 'Fmi2Variability, Real, Boolean')
     path = fmus.build(tmp_path, 'with_flag', source)
     sim = FmuSimulator(path, params)

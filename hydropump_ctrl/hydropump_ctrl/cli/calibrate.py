@@ -67,9 +67,9 @@ def _progress_printer(enabled: bool | None):
     return show
 
 
-def _read(args, params, bags=None):
+def _read(args, params, bags=None, **kw):
     """The bags (default: the command's), each checked against the pump of ``params`` on the
-    signals the model takes (its inputs and the compared outputs)."""
+    signals the model takes (its inputs and the compared outputs); ``kw`` to the reader."""
     from hydropump_sim.measure import CURRENT_SIGNAL, LOAD_PRESSURE_SIGNAL
 
     from ..ident import read_recordings
@@ -78,7 +78,7 @@ def _read(args, params, bags=None):
                                                LOAD_PRESSURE_SIGNAL, *args.signals]
     return read_recordings(args.bags if bags is None else bags,
                            allow_truncated=args.allow_truncated, progress=args.progress,
-                           params=params, check=check)
+                           params=params, check=check, **kw)
 
 
 def _negative_fits(fit: dict) -> list[tuple[str, str, float]]:
@@ -137,6 +137,12 @@ def register(sub) -> None:
     c.add_argument('--no-multistart', action='store_true',
                    help='one start only (by default two more when the first does not reach '
                         'the noise level)')
+    c.add_argument('--fmu', metavar='MODEL.fmu',
+                   help="fit the Real parameters of this FMI 2.0 co-simulation FMU instead "
+                        "of the suite's model: its input current takes the recorded "
+                        'command, its outputs named after measured signals are compared; '
+                        'writes a params file of the simulator node (fmu_file and the '
+                        'calibrated fmu_parameters; docs/fmi.md)')
     c.add_argument('--fleet', metavar='FOLDER',
                    help='calibrate many pumps: FOLDER holds one folder per pump with its bags '
                         '(instead of BAG...); writes fleet.csv, fleet.parquet, fleet.md and a '
@@ -222,6 +228,11 @@ def _executor(args):
 
 
 def cmd_calibrate(args) -> int:
+    if args.fmu and (args.fleet or args.scheduler or args.workers):
+        given = ' '.join(o for o, v in (('--fleet', args.fleet), ('--scheduler', args.scheduler),
+                                         ('--workers', args.workers)) if v)
+        raise UsageError(f'--fmu with {given}: an FMU is calibrated in this process, one '
+                         'model at a time')
     if args.fleet:
         return _fleet(args)
     if not args.bags:
@@ -229,20 +240,40 @@ def cmd_calibrate(args) -> int:
     return _single(args)
 
 
+def _single_fmu(args, priors, plant, report, out, show) -> int:
+    """``calibrate --fmu MODEL.fmu``: the FMU's parameters (hydropump_ctrl.fmi.calibration)."""
+    from ..fmi.calibration import calibrate_fmu, write_fmu_params
+    from ..ident.calibrate import CalibrationError, write_calibration_report
+    from ..ident.calibrate.data import COMMAND_SIGNAL
+    base = _plant(plant, args.profile)
+    # The FMU's current is the commanded one, as the simulator node gives it.
+    recs = _read(args, base, current_topic=COMMAND_SIGNAL)
+    cal = calibrate_fmu(args.fmu, recs, base, args.free, offsets=args.offset,
+                        fit_delays=not args.no_delays, signals=args.signals, priors=priors,
+                        multistart=not args.no_multistart, progress=show)
+    if show:
+        print(file=sys.stderr)
+    cal.provenance = collect([args.fmu, *args.bags])
+    write_calibration_report(cal, report, plots=not args.no_plots)
+    if not cal.improved:
+        raise CalibrationError(f'{_not_improved(cal)}: no params file written; see '
+                               f'{report}/report.md')
+    write_fmu_params(cal, args.fmu, out, [f'FMU: {args.fmu}'])
+    return _print_calibration(args, cal, recs, out, report)
+
+
 def _single(args) -> int:
     from ..ident.calibrate import (
         calibrate,
         CalibrationError,
-        fit_table,
         refuse_foreign_report,
         write_calibration_report,
         write_params,
     )
-    from ..ident.calibrate.writers import estimate_text
     from ..ident.design import suggest
     priors = _priors(args)
     plant = plant_file(args)
-    inputs = [plant, *args.bags] + ([args.profile] if args.profile else [])
+    inputs = [plant, *args.bags] + [f for f in (args.profile, args.fmu) if f]
     if args.out:
         protect_output(args.out, inputs, 'calibrated params file')
     if args.report:
@@ -251,9 +282,11 @@ def _single(args) -> int:
     refuse_foreign_report(report)
     out = output_file(Path(args.out) if args.out else report / 'calibrated.yaml',
                       PARAMS_SUFFIXES, 'params file', kind='plant params')
+    show = _progress_printer(args.progress)
+    if args.fmu:
+        return _single_fmu(args, priors, plant, report, out, show)
     base = _plant(plant, args.profile)
     recs = _read(args, base)
-    show = _progress_printer(args.progress)
     ex = _executor(args)
     try:
         cal = calibrate(recs, base, args.free, offsets=args.offset,
@@ -275,6 +308,12 @@ def _single(args) -> int:
     own, bench = _plant_only(cal, plant, args.profile)
     write_params(cal, out, [f'start: {plant}', *bench], own)
     write_calibration_report(cal, report, plots=not args.no_plots)
+    return _print_calibration(args, cal, recs, out, report)
+
+
+def _print_calibration(args, cal, recs, out, report) -> int:
+    """The calibration on stdout (the JSON result with ``--json``), its flags on stderr."""
+    from ..ident.calibrate.writers import estimate_text, fit_table
     if args.json:
         print(json.dumps(cal.to_dict(), indent=2))
         return 0

@@ -100,6 +100,9 @@ class Supervisor:
     clock : callable
         Steady clock [s] (tests pass a fake one).
     log : callable(level, text)
+    published : callable(topic) -> bool
+        Whether a measured topic has a publisher (the node's graph): an open-loop start
+        waits only for those that do.
     """
 
     #: Steady time [s] after a control instant after which an update uses the latest values,
@@ -112,8 +115,10 @@ class Supervisor:
     THROTTLE = 2.0
 
     def __init__(self, config: ControllerConfig, watchdog: Watchdog = Watchdog(), *,
-                 clock: Callable[[], float] = time.monotonic, log: Log = _print_log):
+                 clock: Callable[[], float] = time.monotonic, log: Log = _print_log,
+                 published: Callable[[str], bool] = lambda topic: True):
         self.config = config
+        self._published = published   # does a topic have a publisher?
         self.watchdog = watchdog
         self._clock = clock
         self._log = log
@@ -315,8 +320,13 @@ class Supervisor:
 
     def _required(self) -> tuple[str, ...]:
         flow = self.config.controller.flow_signal
-        if self._needs_reset:  # a bumpless (re)start needs the whole operating point
-            return (flow, 'line_pressure', 'load_pressure')
+        if self._needs_reset:
+            # A bumpless (re)start needs the whole operating point, but no signal that no
+            # publisher offers (a user's FMU without pressures) is waited for; an excitation
+            # (the mode the update will run in) uses none of it.
+            feedback = self.config.controller.mode != 'open_loop'
+            return tuple(t for t in (flow, 'line_pressure', 'load_pressure')
+                         if (feedback and t == flow) or self._published(t))
         mode = self.ctrl.mode
         if mode == 'flow':
             return (flow,)

@@ -27,6 +27,7 @@ import numpy as np
 
 from hydropump_sim.errors import HydropumpError
 from hydropump_sim.measure import SIGNALS, Topic
+from hydropump_sim.schema import unknown_key_line
 from hydropump_sim.simulate import IntegrationError, Simulator
 from hydropump_sim.system import Model
 
@@ -42,6 +43,8 @@ PLANT_INPUTS = {'current': ('current', 'pump.current'),
 #: each is when the FMU does not output ``pump.<name>`` itself (velocities: 0).
 PUMP_SIGNALS = {'x_c': 'spool_position', 'v_c': None, 'x_a': 'actuator_position',
                 'v_a': None, 'P_a': 'actuator_pressure', 'P_l': 'line_pressure'}
+#: The prefix of the FMU's parameters among the simulator node's parameters.
+FMU_PARAMETERS = 'fmu_parameters.'
 _TOKEN = re.compile(r'[A-Za-z][A-Za-z0-9_]*\Z')
 
 
@@ -147,6 +150,7 @@ class FmuSimulator:
         self.reset_note = None
         self.messages: list[str] = []
         self._fmu, self._instantiated, self._started, self._fmu_t = None, False, False, 0.0
+        self.parameter_values: dict[str, float] = {}
         self._where = fmpy.extract(str(info.path))
         md = info.description
         self._vr = {v.name: v.valueReference for v in md.modelVariables}
@@ -190,6 +194,17 @@ class FmuSimulator:
     def params(self):
         return self.model.params
 
+    def set_parameters(self, values) -> None:
+        """Real parameters of the FMU by name, set from the next :meth:`reset` on (FMI 2.0
+        sets parameters before the initialisation); :class:`FmuError` with a line per name
+        that is not one."""
+        known = self.model.parameters()
+        bad = [unknown_key_line(n, known, f'real parameter of {self.model.info.path.name}')
+               for n in values if n not in known]
+        if bad:
+            raise FmuError(bad)
+        self.parameter_values.update({n: float(v) for n, v in values.items()})
+
     def _logged(self, env, instance, status, category, message):
         text = message.decode(errors='replace') if isinstance(message, bytes) else str(message)
         self.messages = (self.messages + [text])[-20:]
@@ -217,6 +232,10 @@ class FmuSimulator:
         f = self._live()
         if self._started:
             self._call('fmi2Reset', f.reset)
+        if self.parameter_values:
+            names = list(self.parameter_values)
+            self._call('fmi2SetReal', f.setReal, [self._vr[n] for n in names],
+                       [self.parameter_values[n] for n in names])
         self._call('fmi2SetupExperiment', f.setupExperiment, startTime=0.0)
         self._call('fmi2EnterInitializationMode', f.enterInitializationMode)
         if self._in:

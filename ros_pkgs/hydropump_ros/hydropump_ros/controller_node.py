@@ -126,7 +126,8 @@ class ControllerNode(bridge.ExplainedParameters, LifecycleNode):
     # ---- lifecycle -----------------------------------------------------------------------
 
     def on_configure(self, state: State) -> TransitionCallbackReturn:
-        self.sup = Supervisor(self.sup.config, self.sup.watchdog, log=self._log)
+        self.sup = Supervisor(self.sup.config, self.sup.watchdog, log=self._log,
+                              published=lambda topic: self.count_publishers(topic) > 0)
         cfg = self.sup.config
         # Reliable keep-all: a lagging recorder holds a lock-step run back instead of losing
         # commands.

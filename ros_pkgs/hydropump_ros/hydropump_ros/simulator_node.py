@@ -27,6 +27,7 @@ from sensor_msgs.msg import FluidPressure, JointState
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
 
+from hydropump_ctrl.fmi.plant import FMU_PARAMETERS
 from hydropump_sim.circuit import default_circuit_path, load_circuit
 from hydropump_sim.errors import HydropumpError
 from hydropump_sim.measure import FLOW_SIGNALS, JOINTS, model_topics, PRESSURE_SIGNALS
@@ -134,6 +135,9 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         self._pub_f = {k: self.create_publisher(Float64, k, qos) for k in FLOW_SIGNALS
                        if k in have}
         self._pub_js = self.create_publisher(JointState, 'joint_states', qos)
+        # Joint states that carry a measured position (an FMU without spool and plate
+        # positions publishes zeros there, which no recorder is waited for).
+        self._js_measured = bool({'spool_position', 'actuator_position'} & set(have))
         self._pub_i = self.create_publisher(Float64, 'solenoid_current', qos)
         self._pub_x = {t.topic: self.create_publisher(
             FluidPressure if t.kind == 'pressure' else Float64, t.topic, qos)
@@ -160,7 +164,8 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
                      for line in check_all(Params, overrides)[1] if 'unknown' in line]
         params = d.declare(Params, {**plant, **overrides}, source=plant_file)
         sensors = d.declare(SensorConfig, profile.flat(), source=cfg.sensor_profile or None)
-        d.finish(pending=(INPUTS,))  # the circuit's inputs are known once it is read
+        # The circuit's inputs are known once it is read, an FMU's parameters once it is.
+        d.finish(pending=(INPUTS, FMU_PARAMETERS))
         errors = cfg.plant_checks(params)
         if errors:
             raise bridge.StartupError(errors)
@@ -215,10 +220,26 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
     def _fmu_node(self, d, cfg, plant, sensors, overrides) -> None:
         """The rest of the start on an FMU: its parameters, the scenario, the runner."""
         self._inputs = {}
-        d.finish()
+        # Values given for the FMU's parameters (a calibrated file, -p fmu_parameters.x:=)
+        # are set before its initialisation; after the start they are read-only.
+        given = {k[len(FMU_PARAMETERS):]: v for k, v in d.given.items()
+                 if k.startswith(FMU_PARAMETERS)}
+        d.finish(pending=(FMU_PARAMETERS,))
+        bad = [f'{FMU_PARAMETERS}{n}: {v!r} is not a number' for n, v in given.items()
+               if isinstance(v, bool) or not isinstance(v, (int, float))]
+        if bad:
+            raise bridge.StartupError(bad)
+        try:
+            if given:
+                plant.set_parameters(given)
+                plant.reset()
+        except HydropumpError as exc:
+            raise bridge.StartupError([FMU_PARAMETERS + ln for ln in exc.lines or [str(exc)]]) \
+                from None
         from rcl_interfaces.msg import ParameterDescriptor
         for name, value in plant.model.parameters().items():
-            key = 'fmu_parameters.' + name
+            value = plant.parameter_values.get(name, value)
+            key = FMU_PARAMETERS + name
             if _PARAMETER.match(key):
                 self.declare_parameter(key, float(value), ParameterDescriptor(
                     read_only=True, description=f'the FMU parameter {name} '
@@ -335,7 +356,8 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         ``lock_step_timeout``). Before its publishers exist (alone not yet known), nothing."""
         if not self._alone.is_set():
             return
-        pubs = [self._pub_clock, self._pub_js, *self._pub_p.values(), *self._pub_f.values()]
+        pubs = [self._pub_clock, *([self._pub_js] if self._js_measured else []),
+                *self._pub_p.values(), *self._pub_f.values()]
         want = self.runner.cfg.wait_subscribers
         end = time.monotonic() + limit
         while True:

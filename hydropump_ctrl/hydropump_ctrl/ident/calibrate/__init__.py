@@ -32,13 +32,26 @@ from .calibration import (
     calibrate,
     Calibration,
     fit_percent,
+    fit_problem,
+    Found,
     misfit_table,
     ParameterEstimate,
+    prepare,
+    result_of,
     validate,
 )
 from .data import CalibrationError, Experiment, experiment_from, noise_level
 from .engine import DERIVED, params_with, simulate_experiment, tied_values
-from .problem import check_free, DELAY_MAX, delayed, LEAD_SAMPLES, parse_prior, Prior
+from .problem import (
+    check_free,
+    Coordinates,
+    DELAY_MAX,
+    delayed,
+    LEAD_SAMPLES,
+    parse_prior,
+    Prior,
+    Problem,
+)
 from .uncertainty import DETERMINED_REL_STD
 from .writers import (
     fit_table,
@@ -49,9 +62,10 @@ from .writers import (
     write_validation_report,
 )
 
-__all__ = ['Calibration', 'CalibrationError', 'DELAY_MAX', 'LEAD_SAMPLES', 'DERIVED',
-           'DETERMINED_REL_STD', 'Experiment', 'ParameterEstimate', 'Prior', 'calibrate',
-           'check_free', 'delayed', 'experiment_from', 'fit_percent', 'fit_table',
-           'misfit_table', 'noise_level', 'params_with', 'parse_prior', 'refuse_foreign_report',
+__all__ = ['Calibration', 'CalibrationError', 'Coordinates', 'DELAY_MAX', 'LEAD_SAMPLES',
+           'DERIVED', 'DETERMINED_REL_STD', 'Experiment', 'Found', 'ParameterEstimate',
+           'Prior', 'Problem', 'calibrate', 'check_free', 'delayed', 'experiment_from',
+           'fit_percent', 'fit_problem', 'fit_table', 'misfit_table', 'noise_level',
+           'params_with', 'parse_prior', 'prepare', 'refuse_foreign_report', 'result_of',
            'simulate_experiment', 'tied_values', 'validate', 'write_calibration_report',
            'write_params', 'write_text', 'write_validation_report']

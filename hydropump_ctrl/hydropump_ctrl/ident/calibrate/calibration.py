@@ -243,11 +243,17 @@ def _recorded(exps) -> list[str]:
     return ['load_pressure'] if any(e.load_pressure is not None for e in exps) else []
 
 
-def _prepare(recordings, base, free, signals, offsets, priors) -> list[Experiment]:
+def prepare(recordings, base: Params, free: Sequence[str], signals, offsets: Sequence[str],
+            priors: Sequence[Prior], check_free=check_free, settled: bool = True
+            ) -> list[Experiment]:
+    """The recordings as experiments (:func:`.data.experiment_from`, ``settled`` passed on),
+    after every check of what was asked: the compared signals, the free parameters (by
+    ``check_free(base, free, recorded)``), the excitation, the offsets and the priors; one
+    :class:`CalibrationError` with a line per problem."""
     errors = check_signals(signals)
     if errors:
         raise CalibrationError(errors)
-    exps = [experiment_from(r, base, signals) for r in recordings]
+    exps = [experiment_from(r, base, signals, settled) for r in recordings]
     recorded = _recorded(exps)
     errors = check_free(base, free, recorded) + excitation_check(exps)
     errors += [f'--offset {s}: not a compared signal of these recordings (compared: '
@@ -304,37 +310,22 @@ def calibrate(recordings: Sequence, base: Params, free: Sequence[str], *,
     """
     t_wall = time.perf_counter()
     free, priors = tuple(free), list(priors)
-    exps = _prepare(recordings, base, free, signals, offsets, priors)
+    exps = prepare(recordings, base, free, signals, offsets, priors)
     coords = Coordinates.of(base, free)
     theta0 = np.array([float(base.flat()[n]) for n in free])
-    z0 = coords.to_z(theta0)
     engine = Engine(base, free, exps, rtol=rtol, executor=executor, workers=workers)
     prob = Problem(engine, coords, offsets=offsets, fit_delays=fit_delays, per_bag=per_bag,
                    priors=priors, progress=progress)
-    notes = [n for e in exps for n in e.notes]
     try:
-        z_start, tried, before, cost_start = _start(prob, base, free, exps, z0, theta0,
-                                                    closed_form_start)
-        _check_informed(prob, z_start, free)
-        sol, tried = _fit(prob, coords, theta0, z_start, tried, max_nfev, multistart)
-        z = sol.x
-        prob.evaluate(z, search=True)
-        method = ('trust-region least squares (scipy) from ' + ', '.join(tried) + '; '
-                  'sensitivities from copies of the plant stepped with the nominal run; '
-                  'delays and offsets by variable projection')
-        z, Jr, J_prior, held = _hold_uninformed(prob, z0, z, len(free), max_nfev)
-        if held.shape[1]:
-            method += '; a singular direction held at the start'
-        r = prob.data_residuals(z)
-        unc = analyse(Jr, r, free, prob.row_groups(), J_prior, held)
-        model_se = _considered(prob, z, Jr, params_with(base, free, prob.theta(z)), free)
-        cal = _result(prob, base, free, coords, theta0, z, unc, before, notes, recordings,
-                      method, t_wall, model_se)
-        cal.cost_start = cost_start
+        found = fit_problem(prob, theta0, max_nfev, multistart,
+                            start_values(base, free, exps) if closed_form_start else None)
+        params = params_with(base, free, prob.theta(found.z))
+        model_se = _considered(prob, found.z, found.Jr, params, free)
+        cal = result_of(prob, found, params, base, tied_values(params.flat(), free),
+                        recordings, t_wall, model_se)
         if any(m['ratio'] > MISFIT_RATIO for per in cal.misfit.values() for m in per.values()):
-            recorded = _recorded(exps)
             try:
-                cal.missing = missing(prob, z, cal.params, free, recorded)
+                cal.missing = missing(prob, found.z, cal.params, free, _recorded(exps))
             except HydropumpError as exc:   # an analysis beside the result, never its end
                 cal.notes.append(f'what the model lacks was not judged: {exc}')
         return cal
@@ -342,11 +333,48 @@ def calibrate(recordings: Sequence, base: Params, free: Sequence[str], *,
         engine.close()
 
 
-def _start(prob: Problem, base: Params, free: tuple, exps: list, z0: np.ndarray,
-           theta0: np.ndarray, closed_form: bool) -> tuple[np.ndarray, list[str], dict, float]:
-    """Where the fit starts: the params file's values, or the closed-form start values
-    where they fit better, moved off zero. Returns the start, what it is, the predictions
-    and the mean squared residual at the params file's values."""
+@dataclass
+class Found:
+    """What :func:`fit_problem` found: the search vector, the projected Jacobians, the
+    uncertainty analysis, the start's predictions and cost, and how."""
+
+    z: np.ndarray
+    theta0: np.ndarray
+    Jr: np.ndarray
+    unc: Any
+    before: list
+    cost_start: float
+    method: str
+
+
+def fit_problem(prob: Problem, theta0: np.ndarray, max_nfev: int, multistart: bool,
+                candidate: tuple[dict, list] | None = None) -> Found:
+    """The fit of any model behind ``prob`` (its engine simulates): from ``theta0``, or from
+    ``candidate`` (start values by name and why) where they fit better; the starts x 0.6 and
+    x 1.6 with ``multistart`` where the first stops above the noise; every direction no data
+    inform held at the start; the uncertainty analysis at the result."""
+    free = prob.coords.names
+    z0 = prob.coords.to_z(theta0)
+    z_start, tried, before, cost_start = _start(prob, z0, theta0, candidate)
+    _check_informed(prob, z_start, free)
+    sol, tried = _fit(prob, prob.coords, theta0, z_start, tried, max_nfev, multistart)
+    z = sol.x
+    prob.evaluate(z, search=True)
+    method = ('trust-region least squares (scipy) from ' + ', '.join(tried) + '; '
+              f'sensitivities {prob.engine.sensitivities}; delays and offsets by variable '
+              'projection')
+    z, Jr, J_prior, held = _hold_uninformed(prob, z0, z, len(free), max_nfev)
+    if held.shape[1]:
+        method += '; a singular direction held at the start'
+    unc = analyse(Jr, prob.data_residuals(z), free, prob.row_groups(), J_prior, held)
+    return Found(z, np.asarray(theta0, float), Jr, unc, before, cost_start, method)
+
+
+def _start(prob: Problem, z0: np.ndarray, theta0: np.ndarray, candidate
+           ) -> tuple[np.ndarray, list[str], dict, float]:
+    """Where the fit starts: the start values, or the ``candidate`` ones where they fit
+    better, moved off zero. Returns the start, what it is, the predictions and the mean
+    squared residual at the start values."""
     try:
         prob.evaluate(z0, search=True)
         before = prob.predictions(z0)
@@ -356,21 +384,21 @@ def _start(prob: Problem, base: Params, free: tuple, exps: list, z0: np.ndarray,
         raise CalibrationError(f'the start parameters do not simulate: {exc}') from None
     tried = ['the start']
     z_start = z0
-    if closed_form:
-        cand, why = start_values(base, free, exps)
-        if cand:
-            zc = prob.coords.to_z(np.array([cand.get(n, v) for n, v in zip(free, theta0)]))
-            try:
-                c0 = float(np.sum(prob.residuals(z0) ** 2))
-                prob.evaluate(zc, search=True)
-                c1 = float(np.sum(prob.residuals(zc) ** 2))
-            except HydropumpError:
-                c1 = math.inf
-            if c1 < c0:
-                z_start = zc
-                tried = ['the closed-form start (' + ', '.join(why) + ')']
-            else:
-                prob.evaluate(z0, search=True)
+    cand, why = candidate or ({}, [])
+    if cand:
+        zc = prob.coords.to_z(np.array([cand.get(n, v) for n, v in
+                                        zip(prob.coords.names, theta0)]))
+        try:
+            c0 = float(np.sum(prob.residuals(z0) ** 2))
+            prob.evaluate(zc, search=True)
+            c1 = float(np.sum(prob.residuals(zc) ** 2))
+        except HydropumpError:
+            c1 = math.inf
+        if c1 < c0:
+            z_start = zc
+            tried = ['the closed-form start (' + ', '.join(why) + ')']
+        else:
+            prob.evaluate(z0, search=True)
     return _from_zero(prob, z_start), tried, before, cost_start
 
 
@@ -474,34 +502,41 @@ def _projected(prob: Problem, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return reduce_nuisance(np.hstack([Jp, Jn]), prob.n_plant), prob.prior_rows(z)[1]
 
 
-def _result(prob, base, free, coords, theta0, z, unc, before, notes, recordings, method,
-            t_wall, model_se) -> Calibration:
-    exps = prob.exps
+def result_of(prob: Problem, found: Found, params, start, tied: dict, recordings,
+              t_wall: float, model_se: np.ndarray | None = None) -> Calibration:
+    """The :class:`Calibration` of what :func:`fit_problem` found; ``params`` and ``start``
+    are the model's parameter sets (a :class:`Params`, or the values by name of an FMU's),
+    ``tied`` the parameters that moved with the free ones."""
+    exps, free, coords, z = prob.exps, prob.coords.names, prob.coords, found.z
     theta = prob.theta(z)
-    params = params_with(base, free, theta)
     after = prob.predictions(z)
     nuis = prob.evaluate(z)[1]
-    estimates, flags = _estimates(prob, free, coords, theta, theta0, z, unc, model_se)
+    if model_se is None:
+        model_se = np.zeros(len(free))
+    estimates, flags = _estimates(prob, free, coords, theta, found.theta0, z, found.unc,
+                                  model_se)
     misfit = misfit_table(exps, after)
     fits = _fits(exps, after)
     flags += _fit_flags(prob, nuis, misfit, fits)
     delays, offs = _nuisance_tables(prob, nuis)
     r = prob.residuals(z)
     dt = max(e.dt for e in exps)
+    unc = found.unc
     return Calibration(
-        params=params, start=base, estimates=estimates, correlation=unc.correlation,
+        params=params, start=start, estimates=estimates, correlation=unc.correlation,
         singular_values=unc.singular_values, weak=unc.weak, held=unc.held,
-        fit=fits, fit_before=_fits(exps, before), misfit=misfit,
+        fit=fits, fit_before=_fits(exps, found.before), misfit=misfit,
         delays=delays, offsets=offs, sigma={e.name: dict(e.sigma) for e in exps},
-        flags=flags, notes=notes, timing=timing_convention(delays, dt),
+        flags=flags, notes=[n for e in exps for n in e.notes],
+        timing=timing_convention(delays, dt),
         sources=[str(getattr(rec, 'source', '') or getattr(rec, 'name', ''))
                  for rec in recordings],
-        free=free, tied=tied_values(params.flat(), free), priors=list(prob.priors),
-        method=method, n_simulations=prob.engine.n_trajectories,
+        free=tuple(free), tied=tied, priors=list(prob.priors),
+        method=found.method, n_simulations=prob.engine.n_trajectories,
         wall_time=time.perf_counter() - t_wall,
-        cost=float(np.sum(r ** 2) / max(r.size, 1)), predictions=after,
-        predictions_before=before, experiments=exps, information=unc.information,
-        covariance=unc.covariance)
+        cost=float(np.sum(r ** 2) / max(r.size, 1)), cost_start=found.cost_start,
+        predictions=after, predictions_before=found.before, experiments=exps,
+        information=unc.information, covariance=unc.covariance)
 
 
 def _estimates(prob, free, coords, theta, theta0, z, unc, model_se

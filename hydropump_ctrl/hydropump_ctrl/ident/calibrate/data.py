@@ -189,10 +189,13 @@ def _check_time(rec, name: str) -> float:
     return dt
 
 
-def experiment_from(rec, base: Params, signals: Sequence[str] | None = None) -> Experiment:
+def experiment_from(rec, base: Params, signals: Sequence[str] | None = None,
+                    settled: bool = True) -> Experiment:
     """An :class:`Experiment` from a :class:`~..recording.Recording` (pressures made gauge
     with the params file's ``p_atm``); ``signals`` are the compared outputs (default: those
-    of :data:`~hydropump_sim.measure.BENCH_OUTPUT_SIGNALS` the recording has)."""
+    of :data:`~hydropump_sim.measure.BENCH_OUTPUT_SIGNALS` the recording has). With
+    ``settled`` a run that did not start settled starts from the fine model's equilibrium
+    its first samples show; without, the model starts as it initialises (an FMU)."""
     name = rec.name or rec.source or 'recording'
     notes: list[str] = []
     dt = _check_time(rec, name)
@@ -203,7 +206,8 @@ def experiment_from(rec, base: Params, signals: Sequence[str] | None = None) -> 
     # the simulator's phase (a bench's dither phase is not known: see docs/identification.md).
     exp = Experiment(name, dt, cur, load, measured, sigma, source, notes,
                      t0=rec.t0_ns * 1e-9 if base.input.dither_amp > 0 else 0.0)
-    _settled_start(exp, base)
+    if settled:
+        _settled_start(exp, base)
     return exp
 
 

@@ -163,6 +163,12 @@ class Engine:
         loop).
     """
 
+    #: The perturbation of a sensitivity, in the search coordinates: a relative change of
+    #: 0.01 % (the copies share the nominal run's steps: no step-size noise).
+    sensitivity_step = 1e-4
+    #: How the sensitivities are made, as a calibration's method says it.
+    sensitivities = 'from copies of the plant stepped with the nominal run'
+
     def __init__(self, base: Params, names: Sequence[str], exps: Sequence[Experiment], *,
                  rtol: float = 1e-5, executor: Executor | None = None,
                  workers: int | None = None):

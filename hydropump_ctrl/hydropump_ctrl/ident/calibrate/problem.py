@@ -37,7 +37,6 @@ from .engine import DERIVED, Engine
 # current a sample late (or its measurements early) has measurements ahead of their cause.
 LEAD_SAMPLES = 3
 DELAY_MAX = 0.25    # s, the largest measurement delay fitted
-SENSITIVITY_STEP = 1e-4   # in the search coordinates: a relative change of 0.01 %
 
 # Parameters that are not in the equations, and the operating-point inputs a bag carries.
 NOT_IN_MODEL = {'fluid.nu': 'it documents dp_cr and is not in the equations',
@@ -502,7 +501,7 @@ class Problem:
         steps = np.empty(n)
         thetas = []
         for j in range(n):
-            h = SENSITIVITY_STEP * (1.0 if self.coords.log[j] else max(abs(z[j]), 1.0))
+            h = self.engine.sensitivity_step * (1.0 if self.coords.log[j] else max(abs(z[j]), 1.0))
             if z[j] + h > hi[j]:
                 h = -h
             zj = np.array(z, float)

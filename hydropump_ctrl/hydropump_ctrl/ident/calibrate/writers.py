@@ -55,10 +55,10 @@ def estimate_text(p) -> str:
     return text
 
 
-def write_params(cal, path, header_lines: Sequence[str] = (), params: Params | None = None
-                 ) -> Path:
-    """The calibrated parameters (``params``, default ``cal.params``) as a params file in
-    the form of ``config/pump.yaml``, with a header that says where they came from."""
+def calibration_header(cal, header_lines: Sequence[str] = ()) -> str:
+    """The comment lines a calibrated file starts with: the recordings, each free parameter
+    with its start and error, the ties, the fit, the flags, ``header_lines`` and where the
+    calibration was made."""
     lines = ['Calibrated by hydropump calibrate from:']
     lines += [f'  {s}' for s in cal.sources]
     for p in cal.estimates:
@@ -74,15 +74,20 @@ def write_params(cal, path, header_lines: Sequence[str] = (), params: Params | N
         prov = cal.provenance
         lines += [f'date {prov["date"]}, commit {prov["commit"] or "-"}',
                   f'command: {prov["command"]}']
+    return '\n'.join('# ' + ln for ln in lines)
+
+
+def write_params(cal, path, header_lines: Sequence[str] = (), params: Params | None = None
+                 ) -> Path:
+    """The calibrated parameters (``params``, default ``cal.params``) as a params file in
+    the form of ``config/pump.yaml``, with a header that says where they came from."""
     comments = {p.name: f'calibrated (start {p.initial:.6g})' for p in cal.estimates}
     comments.update({n: f'tied: {DERIVED[n][1]}' for n in cal.tied})
     text = dump_ros_yaml((params or cal.params).flat(),
-                         header='\n'.join('# ' + ln for ln in lines),
+                         header=calibration_header(cal, header_lines),
                          comments=comments, specs=spec_map(Params))
     return write_text(path, text, 'params file')
 
-
-# ---- figures -------------------------------------------------------------------------------
 
 def _pyplot():
     import matplotlib
