@@ -28,8 +28,14 @@ ORIFICE = textwrap.dedent("""
             self.register_variable(Real('Cd_A', causality=Fmi2Causality.parameter,
                                         variability=Fmi2Variability.fixed))
 
-        def do_step(self, current_time, step_size):
+        def _flow(self):
             self.flow = self.Cd_A * (2.0 * max(self.pressure, 0.0) / 850.0) ** 0.5
+
+        def exit_initialization_mode(self):
+            self._flow()
+
+        def do_step(self, current_time, step_size):
+            self._flow()
             return True
     """)
 

@@ -205,6 +205,11 @@ def simulate(plant: Params | Model, duration: float, current: Signal | Mapping =
     if not isinstance(plant, Model):
         raise InputError(f'simulate: expected a model or plant parameters, got '
                          f'{type(plant).__name__}')
+    external = getattr(plant, 'external', list)()
+    if external:
+        raise InputError(f'simulate: {", ".join(external)} step beside the circuit (an FMU): '
+                         'run it with the simulator node, or stepped with '
+                         'hydropump_ctrl.fmi.loads.CoupledSimulator')
     if inputs is not None:
         if current is not None:
             raise InputError('simulate: give a model its inputs once, as inputs=')

@@ -79,3 +79,49 @@ def test_a_failing_fmu_stops_stepping_with_its_own_message(nodes, test_node, tmp
     log = sim.log()
     assert 'the FMU failed in fmi2DoStep at t = 0.02 s' in log, log
     assert 'the pump model diverged (made to, for the test)' in log
+
+
+def test_an_fmu_load_in_a_circuit_draws_its_own_flow_at_every_step(nodes, test_node, tmp_path):
+    """``type: fmu`` in a circuit behind the installed simulator: the orifice FMU of
+    tests/fmus.py (Cd_A 2e-6 m^2 to tank) at the paper pump's line; every published load
+    flow is the orifice's closed form at the load pressure the node published a step
+    before (explicit co-simulation), from a steady start."""
+    from sensor_msgs.msg import FluidPressure
+
+    from hydropump_sim.params import default_params_path, load_params
+    fmus.build(tmp_path, 'orifice', fmus.ORIFICE)
+    circuit = tmp_path / 'fmu_load.yaml'
+    circuit.write_text(f"""name: fmu_load
+plant: {default_params_path()}
+components:
+  pump: {{type: pump, ports: {{out: line}}}}
+  load: {{type: fmu, ports: {{in: line}}, file: orifice.fmu}}
+  relief: {{type: relief, ports: {{in: line, out: tank}}, p_crack: plant.relief.p_crack,
+           p_full: plant.relief.p_full, q_full: plant.relief.q_full}}
+  line: {{type: volume, ports: {{node: line}}, V: plant.line.V_l}}
+  tank: {{type: tank, ports: {{node: tank}}}}
+""")
+    p_atm = load_params(default_params_path()).fluid.p_atm
+    pressure = {}
+    test_node.create_subscription(FluidPressure, 'loads/load/pressure', lambda m: pressure.update(
+        {round((m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec) / 1e-3):
+         m.fluid_pressure - p_atm}), 1000)
+    sim = nodes.start('simulator', '-p', f'circuit_file:={circuit}', '-p', 'lock_step:=true',
+                      '-p', 'real_time_factor:=0.0')
+    got = StepCollector(test_node, ['loads/load/flow'])
+    driver = LockStepDriver(test_node, lambda t: 0.5 if t < 0.05 - 1e-9 else 0.35)
+    spin_until(test_node, lambda: test_node.count_publishers('/clock') > 0 or not sim.alive(),
+               60.0, 'the simulator')
+    assert sim.alive(), sim.log()
+    driver.kick()
+    spin_until(test_node, lambda: got.series('loads/load/flow')[0].size >= 150
+               or not sim.alive(), 60.0, '150 steps of loads/load/flow')
+    t, flow = got.series('loads/load/flow')
+    k = np.round(t / 1.0e-3).astype(int)
+    both = [(q, pressure[j - 1]) for j, q in zip(k, flow) if j - 1 in pressure]
+    assert len(both) > 100
+    q, p = np.array(both).T
+    np.testing.assert_allclose(q, 2.0e-6 * np.sqrt(2.0 * np.maximum(p, 0.0) / 850.0),
+                               rtol=1e-9)
+    # A steady start (the first steps hold), then the current's step moves the line.
+    assert np.ptp(p[:40]) < 1e-6 * p[0] and np.ptp(p) > 1.0e5

@@ -101,3 +101,27 @@ def test_bad_input_is_one_line(lag_pump, recordings, params, free, signals, line
     with pytest.raises(CalibrationError) as err:
         calibrate_fmu(lag_pump, recs, params, free, signals=signals)
     assert any(line in ln for ln in err.value.lines), err.value.lines
+
+
+def test_the_command_fits_the_fmu_and_ends_bad_input_in_one_line(lag_pump, recordings, tmp_path,
+                                                                  capsys):
+    from hydropump_ctrl import cli
+    bags = [str(r.save(tmp_path / f'{r.name}.npz')) for r in recordings]
+    report = tmp_path / 'report'
+    assert cli.main(['calibrate', '--fmu', str(lag_pump), *bags, '--free', 'gain', 'tau',
+                     '--report', str(report), '--no-plots', '--json']) == 0
+    result = yaml.safe_load(capsys.readouterr().out)
+    assert result['parameters']['gain']['value'] == pytest.approx(GAIN, rel=0.02)
+    assert (report / 'report.md').is_file()
+    node = yaml.safe_load((report / 'calibrated.yaml').read_text())['/**']['ros__parameters']
+    assert node['fmu_parameters']['tau'] == pytest.approx(TAU, rel=0.02)
+    for args, line in [
+            (['--fmu', str(tmp_path / 'none.fmu'), *bags, '--free', 'tau'],
+             f'{tmp_path / "none.fmu"}: no such file'),
+            (['--fmu', str(lag_pump), *bags, '--free', 'tua'],
+             'tua: unknown real parameter of '),
+            (['--fmu', str(lag_pump), '--fleet', str(tmp_path), '--free', 'tau'],
+             '--fmu with --fleet: an FMU is calibrated in this process, one model at a time')]:
+        assert cli.main(['calibrate', *args, '--report', str(tmp_path / 'r')]) == 2
+        (err,) = capsys.readouterr().err.splitlines()
+        assert err.startswith(f'error: {line}'), err

@@ -123,7 +123,7 @@ def register(sub) -> None:
     add_params_option(c, 'to start from')
     c.add_argument('--free', nargs='+', metavar='NAME', required=True,
                    help='plant parameters to fit, dotted as in config/pump.yaml (e.g. '
-                        'actuator.mu_a line.V_l)')
+                        'actuator.mu_a line.V_l); with --fmu, Real parameters of the FMU')
     c.add_argument('--prior', nargs='+', default=[], metavar='NAME=VALUE+-REL',
                    help='a Gaussian prior in log coordinates on a free parameter, e.g. '
                         'line.V_l=5e-4+-10%%: for a direction the bags leave weak; reported '

@@ -19,19 +19,17 @@ A step that fails stops the simulator with the FMU's own message.
 from __future__ import annotations
 
 import math
-import os
 import re
-import shutil
 
 import numpy as np
 
-from hydropump_sim.errors import HydropumpError
 from hydropump_sim.measure import SIGNALS, Topic
 from hydropump_sim.schema import unknown_key_line
-from hydropump_sim.simulate import IntegrationError, Simulator
+from hydropump_sim.simulate import Simulator
 from hydropump_sim.system import Model
 
 from .export import FmuError
+from .instance import FmuInstance
 from .reading import FmuInfo, read_fmu
 
 #: The operating point's inputs and the FMU input names each is looked for under.
@@ -132,14 +130,6 @@ class FmuSimulator:
     :meth:`reset`."""
 
     def __init__(self, path, params, dt: float = 1.0e-3):
-        import fmpy
-        from fmpy.fmi2 import (
-            fmi2CallbackAllocateMemoryTYPE,
-            fmi2CallbackFreeMemoryTYPE,
-            fmi2CallbackFunctions,
-            fmi2CallbackLoggerTYPE,
-            FMU2Slave,
-        )
         info = read_fmu(path)
         check_plant(info)
         self.model = FmuModel(info, params)
@@ -148,51 +138,24 @@ class FmuSimulator:
         self.t, self.steps = 0.0, 0
         self.stats = np.zeros(2, dtype=np.int64)
         self.reset_note = None
-        self.messages: list[str] = []
-        self._fmu, self._instantiated, self._started, self._fmu_t = None, False, False, 0.0
         self.parameter_values: dict[str, float] = {}
-        self._where = fmpy.extract(str(info.path))
-        md = info.description
-        self._vr = {v.name: v.valueReference for v in md.modelVariables}
-        self._in = [self._vr[n] for n in self.model.inputs]
-        self._out = [self._vr[n] for n in self.model.outputs]
         self.y = np.zeros(len(self.model.signals))
+        self.fmu = FmuInstance(info)
+        self._in = self.fmu.refs(self.model.inputs)
+        self._out = self.fmu.refs(self.model.outputs)
         try:
-            callbacks = fmi2CallbackFunctions()
-            callbacks.logger = fmi2CallbackLoggerTYPE(self._logged)
-            callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(fmpy.calloc)
-            callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(fmpy.free)
-            try:
-                from ctypes import byref
-
-                from fmpy.logging import addLoggerProxy
-                addLoggerProxy(byref(callbacks))
-            except Exception:   # messages then arrive unformatted: still worth keeping
-                pass
-            self._callbacks = callbacks
-            # FMPy loads the library from its folder and does not come back when loading
-            # fails: the process's folder is put back here whatever happens.
-            cwd = os.getcwd()
-            try:
-                self._fmu = FMU2Slave(guid=md.guid, unzipDirectory=self._where,
-                                      modelIdentifier=info.model_identifier,
-                                      instanceName='simulator')
-            finally:
-                os.chdir(cwd)
-            self._fmu.instantiate(callbacks=callbacks, loggingOn=True)
-            self._instantiated = True
             self.reset()
-        except HydropumpError:
+        except BaseException:
             self.close()
             raise
-        except Exception as exc:   # FMPy's own: a binary that does not load or instantiate
-            self.close()
-            said = '; '.join(m for m in self.messages if m) or str(exc)
-            raise FmuError([f'{info.path}: cannot load or instantiate it: {said}']) from None
 
     @property
     def params(self):
         return self.model.params
+
+    @property
+    def messages(self) -> list[str]:
+        return self.fmu.messages
 
     def set_parameters(self, values) -> None:
         """Real parameters of the FMU by name, set from the next :meth:`reset` on (FMI 2.0
@@ -205,23 +168,6 @@ class FmuSimulator:
             raise FmuError(bad)
         self.parameter_values.update({n: float(v) for n, v in values.items()})
 
-    def _logged(self, env, instance, status, category, message):
-        text = message.decode(errors='replace') if isinstance(message, bytes) else str(message)
-        self.messages = (self.messages + [text])[-20:]
-
-    def _live(self):
-        if self._fmu is None:
-            raise IntegrationError('the FMU is closed')
-        return self._fmu
-
-    def _call(self, what: str, fn, *args, **kwargs):
-        try:
-            return fn(*args, **kwargs)
-        except Exception as exc:
-            said = '; '.join(m for m in self.messages if m) or str(exc)
-            raise IntegrationError(f'the FMU failed in {what} at t = {self.t:.6g} s of '
-                                   f'simulation time: {said}') from None
-
     def reset(self, inputs=None, keep_time: bool = False, keep_inputs: bool = True) -> None:
         """Back to the FMU's initial state at the held inputs (the FMU's starts unless
         ``keep_inputs``), with ``inputs`` by name over them."""
@@ -229,20 +175,7 @@ class FmuSimulator:
             self.u = self.model.u0.copy()
         for name, v in (inputs or {}).items():
             self.set_input(name, v)
-        f = self._live()
-        if self._started:
-            self._call('fmi2Reset', f.reset)
-        if self.parameter_values:
-            names = list(self.parameter_values)
-            self._call('fmi2SetReal', f.setReal, [self._vr[n] for n in names],
-                       [self.parameter_values[n] for n in names])
-        self._call('fmi2SetupExperiment', f.setupExperiment, startTime=0.0)
-        self._call('fmi2EnterInitializationMode', f.enterInitializationMode)
-        if self._in:
-            self._call('fmi2SetReal', f.setReal, self._in, list(self.u))
-        self._call('fmi2ExitInitializationMode', f.exitInitializationMode)
-        self._started = True
-        self._fmu_t = 0.0
+        self.fmu.initialise(self.parameter_values, self._in, self.u, at=self.t)
         if not keep_time:
             self.t, self.steps = 0.0, 0
 
@@ -253,12 +186,8 @@ class FmuSimulator:
     def step(self) -> None:
         """One increment of the FMU: the held inputs set, ``fmi2DoStep`` over ``dt``
         (its own clock runs on from its reset, whatever jumps the node's makes)."""
-        f = self._live()
-        if self._in:
-            self._call('fmi2SetReal', f.setReal, self._in, list(self.u))
-        self._call('fmi2DoStep', f.doStep, currentCommunicationPoint=self._fmu_t,
-                   communicationStepSize=self.dt)
-        self._fmu_t += self.dt
+        self.fmu.set(self._in, self.u, at=self.t)
+        self.fmu.step(self.dt, at=self.t)
         self.stats[0] += 1
         self.steps += 1
         self.t = self.steps * self.dt
@@ -269,10 +198,8 @@ class FmuSimulator:
         m = self.model
         n = len(m.outputs)
         if self._out:
-            f = self._live()
-            if self._in:
-                self._call('fmi2SetReal', f.setReal, self._in, list(self.u))
-            self.y[:n] = self._call('fmi2GetReal', f.getReal, self._out)
+            self.fmu.set(self._in, self.u, at=self.t)
+            self.y[:n] = self.fmu.get(self._out, at=self.t)
         for j, name in enumerate(m.signals[n:], n):
             src = PUMP_SIGNALS[name.split('.', 1)[1]]
             self.y[j] = self.y[m.outputs.index(src)] if src in m.outputs else 0.0
@@ -280,17 +207,4 @@ class FmuSimulator:
 
     def close(self) -> None:
         """The FMU ended and its unpacked files removed (again: nothing)."""
-        f, self._fmu = self._fmu, None
-        if f is not None:
-            try:
-                if self._instantiated:
-                    if self._started:
-                        f.terminate()
-                    f.freeInstance()
-                else:
-                    f.freeLibrary()
-            except Exception:    # an FMU that failed may refuse to end: its files still go
-                pass
-        if self._where:
-            shutil.rmtree(self._where, ignore_errors=True)
-            self._where = None
+        self.fmu.close()

@@ -139,8 +139,10 @@ class Circuit(Model):
         """The inputs an operator or a duty cycle sets (valve commands, forces, torques), by
         their shortest names: every input but those of the components whose inputs are the
         plant's operating point (``PLANT_INPUTS``: the pump's, the paper load's of eq. 9),
-        which the simulator holds."""
-        plant = {f'{pt.comp.name}.{s.name}' for pt in self.parts if pt.comp.PLANT_INPUTS
+        which the simulator holds, and those of the models stepped beside the circuit
+        (``external``: a user's FMU)."""
+        plant = {f'{pt.comp.name}.{s.name}' for pt in self.parts
+                 if pt.comp.PLANT_INPUTS or 'external' in pt.comp.ROLES
                  for s in pt.comp.INPUTS}
         aliased = {full for exp in self.composites.values() for full in exp.inputs.values()}
         return [n for n in self.all_inputs() if n not in plant and n not in aliased]
@@ -156,6 +158,11 @@ class Circuit(Model):
     def role(self, role: str) -> list[Part]:
         """The parts that declare ``role`` (``components.base.ROLES``)."""
         return [pt for pt in self.parts if role in pt.comp.ROLES]
+
+    def external(self) -> list[str]:
+        """The components whose inputs a model outside the circuit gives (``external``: a
+        user's FMU, stepped beside it by hydropump_ctrl/fmi/loads.py)."""
+        return [pt.comp.name for pt in self.role('external')]
 
     def pump(self) -> Part | None:
         """The circuit's pump (electro-hydraulic or hydromechanical), if any."""

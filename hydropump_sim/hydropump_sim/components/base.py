@@ -139,6 +139,8 @@ ROLES = {
     'ls_sensor': 'gives the load-sensing pressure, what a margin is held against',
     'compensator': 'holds a pressure difference dp_set across a metering edge',
     'pressure_limit': 'limits a pressure (relief, cut-off): its flow counts as relieved',
+    'external': "a model outside the circuit, stepped beside it (a user's FMU): its inputs "
+                "are that model's outputs, no operator's",
 }
 
 

@@ -275,6 +275,10 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         if circuit.pump() is None:
             raise HydropumpError([f'{circuit.name}: the simulator node runs a circuit with a '
                                   'pump (type pump or ls_pump)'])
+        if circuit.external():
+            # A user's FMU loads, stepped beside the circuit (co-simulation).
+            from hydropump_ctrl.fmi.loads import CoupledSimulator
+            return CoupledSimulator(circuit, self.cfg.dt)
         return Simulator(circuit, self.cfg.dt)
 
     def _other_circuit(self, sets: str) -> tuple[Simulator | None, str | None]:
@@ -333,8 +337,11 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         plant = None
         for p in params:
             if reason is None and p.name == 'circuit_sets':
-                plant, reason = self._other_circuit(p.value) if not self.cfg.fmu_file else \
-                    (None, 'circuit_sets: the plant is an FMU (fmu_file)')
+                plant, reason = (None, 'circuit_sets: the plant is an FMU (fmu_file)') \
+                    if self.cfg.fmu_file else \
+                    (None, 'circuit_sets: the circuit has FMU loads; restart the simulator '
+                           'to change it') if getattr(self.runner.sim, 'loads', None) else \
+                    self._other_circuit(p.value)
         if reason is None:
             if plant is not None:
                 self.runner.set_plant(plant)

@@ -1,0 +1,110 @@
+"""A user's FMU as a load inside a circuit (``type: fmu``, hydropump_ctrl.fmi.loads), without
+ROS: an orifice written here with PythonFMU (none of the suite's code) at the paper pump's
+line, stepped beside the circuit, against the same circuit with the suite's own orifice
+load of the same law (eq. 9) in its place; the FMU's flow is its closed form at every step,
+the power it takes is P Q; bad files and mappings are one line each."""
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hydropump_ctrl.fmi.export import FmuError
+from hydropump_ctrl.fmi.loads import CoupledSimulator
+from hydropump_sim.circuit import load_circuit
+from hydropump_sim.errors import InputError
+from hydropump_sim.simulate import simulate, Simulator
+
+from .. import fmus
+
+pytest.importorskip('fmpy')
+pytest.importorskip('pythonfmu')
+
+RHO, CDA, P_U = 850.0, 4.0e-6, 1.0e4
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def circuit_text(load: str) -> str:
+    return f"""name: fmu_load
+plant: {ROOT / 'config' / 'pump.yaml'}
+components:
+  pump: {{type: pump, ports: {{out: line}}}}
+  load: {load}
+  relief: {{type: relief, ports: {{in: line, out: tank}}, p_crack: plant.relief.p_crack,
+           p_full: plant.relief.p_full, q_full: plant.relief.q_full}}
+  line: {{type: volume, ports: {{node: line}}, V: plant.line.V_l}}
+  tank: {{type: tank, ports: {{node: tank}}}}
+"""
+
+
+@pytest.fixture(scope='module')
+def folder(tmp_path_factory):
+    """The orifice FMU (Cd_A 4e-6 m^2, to P_U above tank) and two circuits: the FMU load,
+    named relative to the circuit's folder, and the suite's orifice load of the same law."""
+    where = tmp_path_factory.mktemp('fmu_load')
+    fmus.build(where, 'orifice', fmus.ORIFICE.replace('self.Cd_A = 2.0e-6', f'self.Cd_A = {CDA!r}')
+               .replace('max(self.pressure, 0.0)', f'max(self.pressure - {P_U!r}, 0.0)'))
+    (where / 'fmu.yaml').write_text(circuit_text(
+        '{type: fmu, ports: {in: line}, file: orifice.fmu}'))
+    mu = CDA * math.sqrt(2.0 / RHO)
+    (where / 'suite.yaml').write_text(circuit_text(
+        f'{{type: orifice_load, ports: {{in: line}}, mu: {mu!r}, load_pressure: {P_U!r}, '
+        'aperture: 1.0, gamma: 2.0}'))
+    return where
+
+
+def _run(sim, n=1500, current=0.62):
+    """The line pressure, the load flow and its power at the start and after each step of
+    a current step at the first one."""
+    c = sim.model
+    k = [c.signal_index(s) for s in ('node:line', 'load.flow', 'load.work')]
+    out = [sim.outputs()[k].copy()]
+    sim.set_input('pump.current', current)
+    for _ in range(n):
+        sim.step()
+        out.append(sim.outputs()[k].copy())
+    return np.array(out)
+
+
+def test_an_fmu_load_runs_as_the_suites_orifice_of_the_same_law(folder):
+    coupled = CoupledSimulator(load_circuit(folder / 'fmu.yaml'), 1.0e-3)
+    try:
+        assert coupled.reset_note is None
+        assert coupled.model.operator_inputs() == []        # the FMU's flow is no operator's
+        got = _run(coupled)
+    finally:
+        coupled.close()
+    ref = _run(Simulator(load_circuit(folder / 'suite.yaml'), 1.0e-3))
+    p, q, w = got.T
+    # The start is the steady state of both together: the suite's, within its solver's
+    # tolerance (the line pressure is steep in the flow where the pump's flow is flat in it).
+    assert p[0] == pytest.approx(ref[0, 0], rel=1e-4)
+    assert q[0] == pytest.approx(ref[0, 1], rel=1e-6)
+    # Every step the flow is the FMU's closed form at the pressure the step started from
+    # (explicit coupling), and the power it takes P Q.
+    np.testing.assert_allclose(q[1:], CDA * np.sqrt(2.0 * (p[:-1] - P_U) / RHO), rtol=1e-12)
+    np.testing.assert_allclose(w, p * q, rtol=1e-12)
+    # The current step moves the line by bars, and the coupled run follows the suite's
+    # within what a step's lag makes of it; it settles (1.5 s) where the suite's settles.
+    assert np.ptp(ref[:, 0]) > 5.0e5
+    assert np.max(np.abs(p - ref[:, 0])) < 0.02 * np.ptp(ref[:, 0])
+    assert p[-1] == pytest.approx(ref[-1, 0], rel=1e-6)
+    assert q[-1] == pytest.approx(ref[-1, 1], rel=1e-6)
+
+
+def test_bad_fmu_loads_are_one_line_each(folder):
+    (folder / 'missing.yaml').write_text(circuit_text(
+        '{type: fmu, ports: {in: line}, file: none.fmu}'))
+    with pytest.raises(FmuError) as err:
+        CoupledSimulator(load_circuit(folder / 'missing.yaml'))
+    assert err.value.lines == [f'load: {folder / "none.fmu"}: no such file']
+    (folder / 'unmapped.yaml').write_text(circuit_text(
+        '{type: fmu, ports: {in: line}, file: orifice.fmu, pressure_input: p_in}'))
+    with pytest.raises(FmuError) as err:
+        CoupledSimulator(load_circuit(folder / 'unmapped.yaml'))
+    (line,) = err.value.lines
+    assert line.startswith(f'load: {folder / "orifice.fmu"}: ') and 'p_in' in line, line
+    # The plant library steps no FMU: simulate() says where it runs.
+    with pytest.raises(InputError, match='load step beside the circuit'):
+        simulate(load_circuit(folder / 'fmu.yaml'), 0.1)
