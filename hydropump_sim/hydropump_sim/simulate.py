@@ -147,6 +147,16 @@ def _paper_inputs(current, load_pressure, aperture, shaft_speed) -> dict:
             'load.aperture': aperture, 'pump.shaft_speed': shaft_speed}
 
 
+def refuse_external(model, what: str) -> None:
+    """:class:`InputError` for a circuit with components a model outside it steps (a user's
+    FMU load): the plant library steps none of them."""
+    external = getattr(model, 'external', list)()
+    if external:
+        raise InputError(f'{what}: {", ".join(external)} step beside the circuit (an FMU): '
+                         'run it with the simulator node, or stepped with '
+                         'hydropump_ctrl.fmi.loads.CoupledSimulator')
+
+
 def simulate(plant: Params | Model, duration: float, current: Signal | Mapping = None, *,
              model: str = 'fine', load_pressure: Signal = None, aperture: Signal = None,
              shaft_speed: Signal = None, x0=None, dt_out: float = 1.0e-3,
@@ -205,11 +215,7 @@ def simulate(plant: Params | Model, duration: float, current: Signal | Mapping =
     if not isinstance(plant, Model):
         raise InputError(f'simulate: expected a model or plant parameters, got '
                          f'{type(plant).__name__}')
-    external = getattr(plant, 'external', list)()
-    if external:
-        raise InputError(f'simulate: {", ".join(external)} step beside the circuit (an FMU): '
-                         'run it with the simulator node, or stepped with '
-                         'hydropump_ctrl.fmi.loads.CoupledSimulator')
+    refuse_external(plant, 'simulate')
     if inputs is not None:
         if current is not None:
             raise InputError('simulate: give a model its inputs once, as inputs=')
@@ -418,12 +424,18 @@ class Simulator:
         Where the search for that steady state starts (a nearby one).
     """
 
+    #: Whether this stepper steps the models a circuit's ``external`` components stand for
+    #: (a subclass that does: hydropump_ctrl.fmi.loads.CoupledSimulator).
+    steps_external = False
+
     def __init__(self, plant: Params | Model, dt: float = 1.0e-3, model: str = 'fine',
                  config: IntegratorConfig = IntegratorConfig(),
                  inputs: Mapping[str, float] | None = None, x0=None):
         if not (math.isfinite(dt) and dt > 0):
             raise InputError(f'dt = {dt!r}: expected a positive number of seconds')
         self.model = PumpModel(plant, model) if isinstance(plant, Params) else plant
+        if not self.steps_external:
+            refuse_external(self.model, 'Simulator')
         self.dt = dt
         self.config = config
         self._stepper = self.model.stepper_model()

@@ -44,7 +44,9 @@ def _parameters(test_node, names):
 def test_an_fmu_is_calibrated_from_bags_recorded_through_the_nodes(nodes, test_node,
                                                                    tmp_path):
     path = fmus.lag_pump(tmp_path)
-    truth = [f'fmu_parameters.{n}:={v!r}' for n, v in {**TRUTH, 'noise': NOISE}.items()]
+    # (An integer is a number too: fail_after:=0.)
+    truth = [f'fmu_parameters.{n}:={v!r}' for n, v in
+             {**TRUTH, 'noise': NOISE, 'fail_after': 0}.items()]
     sim = nodes.start('simulator', '-p', f'fmu_file:={path}', '-p', 'lock_step:=true',
                       '-p', 'start_paused:=true', *[a for t in truth for a in ('-p', t)])
     nodes.start('controller', '-p', 'autostart:=true')

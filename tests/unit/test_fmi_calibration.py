@@ -48,8 +48,10 @@ def _exact(levels, p_atm, seed, n=1200, dwell=0.3, settled_at=None):
 def recordings(params):
     # The second starts where a recorder's run may: settled at another current (0.7 A)
     # than its first (0.6 A).
-    return [_exact([0.4, 0.6, 0.8, 0.5], params.fluid.p_atm, 1),
-            _exact([0.6, 0.45, 0.65, 0.35], params.fluid.p_atm, 2, settled_at=0.7)]
+    # The first one's pressure starts late (its first messages lost): NaN there.
+    first = _exact([0.4, 0.6, 0.8, 0.5], params.fluid.p_atm, 1)
+    first.signals['line_pressure'][:3] = np.nan
+    return [first, _exact([0.6, 0.45, 0.65, 0.35], params.fluid.p_atm, 2, settled_at=0.7)]
 
 
 def test_an_fmu_is_calibrated_to_the_closed_form(lag_pump, recordings, params, tmp_path):
@@ -73,7 +75,7 @@ def test_an_fmu_is_calibrated_to_the_closed_form(lag_pump, recordings, params, t
     assert cal.improved and cal.cost < 0.01 * cal.cost_start
     assert 'forward differences of whole runs of the FMU' in cal.method
     # The run that started settled elsewhere starts there, within its first sample's noise.
-    (note,) = cal.notes
+    (note,) = [n for n in cal.notes if 'settled' in n]
     head = ('staircase2: the run did not start settled at its first current (0.6 A): its '
             'first samples show the FMU settled at ')
     assert note.startswith(head) and note.endswith(' A, where its run starts'), note

@@ -105,6 +105,16 @@ def test_bad_fmu_loads_are_one_line_each(folder):
         CoupledSimulator(load_circuit(folder / 'unmapped.yaml'))
     (line,) = err.value.lines
     assert line.startswith(f'load: {folder / "orifice.fmu"}: ') and 'p_in' in line, line
-    # The plant library steps no FMU: simulate() says where it runs.
-    with pytest.raises(InputError, match='load step beside the circuit'):
+    # The plant library steps no FMU: simulate() and a plain stepper say where it runs,
+    # and an exported FMU would not carry it.
+    with pytest.raises(InputError, match='simulate: load step beside the circuit'):
         simulate(load_circuit(folder / 'fmu.yaml'), 0.1)
+    with pytest.raises(InputError, match='Simulator: load step beside the circuit'):
+        Simulator(load_circuit(folder / 'fmu.yaml'))
+    from hydropump_ctrl.fmi.export import export_fmu
+    with pytest.raises(FmuError) as err:
+        export_fmu(folder / 'out.fmu', folder / 'fmu.yaml')
+    assert err.value.lines == [f'{folder / "fmu.yaml"}: load: FMUs of their own: an FMU '
+                               'of this suite does not carry them (export the circuit '
+                               'without them)']
+    assert not (folder / 'out.fmu').exists()

@@ -101,8 +101,9 @@ class Supervisor:
         Steady clock [s] (tests pass a fake one).
     log : callable(level, text)
     published : callable(topic) -> bool
-        Whether a measured topic has a publisher (the node's graph): an open-loop start
-        waits only for those that do.
+        Whether a measured topic has a publisher (the node's graph): a (re)start waits for
+        what its mode feeds back, and for the rest of the operating point only where it
+        is published.
     """
 
     #: Steady time [s] after a control instant after which an update uses the latest values,
@@ -321,12 +322,13 @@ class Supervisor:
     def _required(self) -> tuple[str, ...]:
         flow = self.config.controller.flow_signal
         if self._needs_reset:
-            # A bumpless (re)start needs the whole operating point, but no signal that no
-            # publisher offers (a user's FMU without pressures) is waited for; an excitation
-            # (the mode the update will run in) uses none of it.
-            feedback = self.config.controller.mode != 'open_loop'
+            # A bumpless (re)start needs the whole operating point: always what the mode the
+            # update will run in feeds back, the rest where some node publishes it (a user's
+            # FMU may have no pressures; an excitation feeds back nothing).
+            fed = {'flow': (flow,), 'margin': ('line_pressure', 'load_pressure')}.get(
+                self.config.controller.mode, ())
             return tuple(t for t in (flow, 'line_pressure', 'load_pressure')
-                         if (feedback and t == flow) or self._published(t))
+                         if t in fed or self._published(t))
         mode = self.ctrl.mode
         if mode == 'flow':
             return (flow,)

@@ -27,7 +27,6 @@ interpreter, as PythonFMU's do: threads would buy nothing). Nothing here imports
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-import math
 from pathlib import Path
 import time
 
@@ -54,8 +53,6 @@ from ..ident.calibrate.writers import calibration_header
 from ..ident.fit import blas_single_threaded
 from .plant import FMU_PARAMETERS, FmuSimulator
 
-#: The first samples of a run that show the state it starts from.
-FIRST = 1
 #: A run whose start current is this far from its first current (a fraction of the
 #: current's range) did not start settled at it: the result says so.
 UNSETTLED = 0.02
@@ -98,19 +95,26 @@ class FmuEngine:
         sim.reset(first)
         return sim.outputs()[[sim.model.signals.index(s) for s in exp.measured]]
 
-    def _first(self, exp: Experiment) -> tuple[np.ndarray, np.ndarray]:
-        """The mean of the first :data:`FIRST` measured samples of each compared signal, and
-        its standard error."""
-        y = np.array([np.nanmean(v[:FIRST]) for v in exp.measured.values()])
-        return y, np.array([exp.sigma[s] for s in exp.measured]) / math.sqrt(FIRST)
+    def _first(self, exp: Experiment) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The first finite sample of each compared signal that has one, its noise level,
+        and which signals they are (a signal whose first message came late is NaN at the
+        start of the grid)."""
+        y, se, ok = [], [], []
+        for s, v in exp.measured.items():
+            finite = np.flatnonzero(np.isfinite(v))
+            ok.append(finite.size > 0)
+            if finite.size:
+                y.append(float(v[finite[0]]))
+                se.append(exp.sigma[s])
+        return np.array(y), np.array(se), np.array(ok, dtype=bool)
 
     def start_current(self, theta, exp: Experiment) -> float:
-        """The current whose settled start fits the first samples of ``exp`` best."""
+        """The current whose settled start fits the first sample of ``exp`` best."""
         from scipy.optimize import minimize_scalar
-        y, se = self._first(exp)
+        y, se, ok = self._first(exp)
         lo, hi = self.range
-        res = minimize_scalar(lambda i: float(np.sum(((self._start(theta, exp, i) - y) / se)
-                                                     ** 2)),
+        res = minimize_scalar(lambda i: float(np.sum(((self._start(theta, exp, i)[ok] - y)
+                                                      / se) ** 2)),
                               bounds=(lo, hi), method='bounded',
                               options={'xatol': 1e-9 * (hi - lo)})
         return float(res.x)

@@ -82,6 +82,9 @@ def export_fmu(out: str | Path, circuit: str | Path | None = None, *,
         c = load_circuit(circuit, sets, plant)        # every problem of the file, first
     except (CircuitError, ParamError) as exc:
         raise FmuError(exc.lines, str(circuit)) from None
+    if c.external():
+        raise FmuError([f'{circuit}: {", ".join(c.external())}: FMUs of their own: an FMU '
+                        'of this suite does not carry them (export the circuit without them)'])
     out = Path(out)
     if out.suffix != '.fmu':
         raise FmuError([f'{out}: an FMU file ends in .fmu'])

@@ -122,9 +122,11 @@ class FmuLoads:
                     q = 0.0
                     for _ in range(START_PASSES):
                         q += START_DAMPING * -held(j, q)
+                    held(j, q)
             change = max(abs(a - b) for a, b in zip(flows, before))
             scale = max(max(abs(q) for q in flows), 1e-12)
-            if change <= 1e3 * START_TOLERANCE * scale:
+            # One FMU is found in one pass; several until none moves.
+            if len(flows) == 1 or change <= 1e3 * START_TOLERANCE * scale:
                 break
         # Each FMU initialised at the pressure it now sees: does its answer agree?
         residual = max(abs(held(j, flows[j])) for j in range(len(flows)))
@@ -149,6 +151,8 @@ class FmuLoads:
 class CoupledSimulator(Simulator):
     """A circuit's :class:`~hydropump_sim.simulate.Simulator` with its FMU loads stepped
     beside it (see the module); :meth:`close` frees them."""
+
+    steps_external = True
 
     def __init__(self, circuit, dt: float = 1.0e-3, **kwargs):
         self.loads = FmuLoads(circuit)

@@ -41,6 +41,10 @@ class GraphError(HydropumpError):
     """A failure of the graph that ends the run: one line for the user."""
 
 
+class GraphTimeoutError(GraphError):
+    """What the graph was waited for did not come in time."""
+
+
 # The largest ROS_DOMAIN_ID (DDS ports for a domain above it fall outside the port range).
 MAX_DOMAIN_ID = 232
 
@@ -153,7 +157,7 @@ class Orchestrator:
         while not predicate():
             self.check_nodes()
             if time.monotonic() > deadline:
-                raise GraphError(f'timed out after {timeout:g} s waiting for {what}')
+                raise GraphTimeoutError(f'timed out after {timeout:g} s waiting for {what}')
             self.rclpy.spin_once(self.node, timeout_sec=0.01)
             if poll and not predicate():
                 time.sleep(poll)
@@ -168,24 +172,39 @@ class Orchestrator:
         ns = self.namespace or '/'
         return {n for n, space in self.node.get_node_names_and_namespaces() if space == ns}
 
-    def call(self, srv_type, name: str, request, timeout: float = 60.0):
+    def call(self, srv_type, name: str, request, timeout: float = 60.0, attempts: int = 1):
+        """``request`` to the service ``name``: at most ``timeout`` [s] for it to be ready
+        and as long for its answer; an idempotent request may be sent ``attempts`` times,
+        each waiting its share of that (an answer lost to a client made just before, which
+        rclpy's services may lose, then costs a share, not the whole wait)."""
         if name not in self._clients:
             self._clients[name] = self.node.create_client(srv_type, name)
         client = self._clients[name]
         self.spin_until(client.service_is_ready, timeout, f'the service {self.name(name)}')
-        future = client.call_async(request)
-        self.spin_until(future.done, timeout, f'the answer of {self.name(name)}')
-        return future.result()
+        attempts = max(1, int(attempts))
+        for attempt in range(attempts):
+            future = client.call_async(request)
+            try:
+                self.spin_until(future.done, timeout / attempts,
+                                f'the answer of {self.name(name)}')
+            except GraphTimeoutError:
+                client.remove_pending_request(future)
+                if attempt == attempts - 1:
+                    raise
+                continue
+            return future.result()
 
-    def set_params(self, node: str, values: dict) -> None:
+    def set_params(self, node: str, values: dict, timeout: float = 60.0,
+                   attempts: int = 1) -> None:
         """Set ``values`` on ``node`` one at a time, in their order (each must leave a valid
-        configuration)."""
+        configuration); ``timeout`` and ``attempts`` as :meth:`call` takes them (setting
+        the same values again is harmless)."""
         from rcl_interfaces.srv import SetParameters
         from rclpy.parameter import Parameter
         req = SetParameters.Request(parameters=[Parameter(k, value=v).to_parameter_msg()
                                                 for k, v in values.items()])
         for name, result in zip(values, self.call(SetParameters, f'{node}/set_parameters',
-                                                  req).results):
+                                                  req, timeout, attempts).results):
             if not result.successful:
                 raise GraphError(f'{self.name(node)} refused {name} = {values[name]}: '
                                  f'{result.reason}')
@@ -547,9 +566,11 @@ class Graph:
                 proc.wait()
         self.orch.procs = {}
         restore, self._restore = self._restore, {}
+        # Bounded: a command stopped by a signal must end (at most 15 s for a node's service
+        # and three tries of 5 s for its answer).
         for node, values in restore.items():
             with contextlib.suppress(GraphError):
-                self.orch.set_params(node, values)
+                self.orch.set_params(node, values, timeout=15.0, attempts=3)
 
 
 # ---- runs -----------------------------------------------------------------------------------

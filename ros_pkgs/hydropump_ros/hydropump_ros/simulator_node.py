@@ -194,10 +194,19 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         except HydropumpError as exc:
             raise bridge.StartupError([f'{path}: {ln}' for ln in exc.lines or [str(exc)]]) \
                 from None
-        scenario = self._scenario(cfg, circuit)
-        self.schema_specs = d.specs
-        self.runner = Runner(plant, cfg, profile=SensorProfile.from_config(sensors, overrides),
-                             scenario=scenario, log=self._log)
+        try:
+            scenario = self._scenario(cfg, circuit)
+            self.schema_specs = d.specs
+            self.runner = Runner(plant, cfg, profile=SensorProfile.from_config(sensors,
+                                                                               overrides),
+                                 scenario=scenario, log=self._log)
+        except BaseException as exc:
+            if hasattr(plant, 'close'):     # FMU loads: their instances and files
+                plant.close()
+            if isinstance(exc, HydropumpError) and not isinstance(exc, bridge.StartupError):
+                raise bridge.StartupError([f'{path}: {ln}' for ln in exc.lines or [str(exc)]]) \
+                    from None
+            raise
 
     def _configure_fmu(self, d, cfg, sensors, overrides) -> None:
         """A user's FMU as the plant (hydropump_ctrl.fmi.plant): its parameters as
@@ -241,9 +250,10 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
             value = plant.parameter_values.get(name, value)
             key = FMU_PARAMETERS + name
             if _PARAMETER.match(key):
+                # The value given (an integer too) is the FMU's already: declared as a float.
                 self.declare_parameter(key, float(value), ParameterDescriptor(
                     read_only=True, description=f'the FMU parameter {name} '
-                    f'[{plant.model.info.variables[name].unit or "-"}]'))
+                    f'[{plant.model.info.variables[name].unit or "-"}]'), ignore_override=True)
         scenario = self._scenario(cfg, plant.model)
         self.schema_specs = d.specs
         try:
