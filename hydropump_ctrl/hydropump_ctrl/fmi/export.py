@@ -92,7 +92,7 @@ def export_fmu(out: str | Path, circuit: str | Path | None = None, *,
         raise FmuError([f'{out}: is a folder; give the FMU file to write'])
     from pythonfmu.builder import FmuBuilder
 
-    from .hydropump_fmu import parameters
+    from hydropump_sim.block import parameters
     problems: tuple = ()
     # Whole or not at all (hydropump_sim.files): a refused FMU or a full disk leaves ``out``
     # as it was; an OSError anywhere here is one line.

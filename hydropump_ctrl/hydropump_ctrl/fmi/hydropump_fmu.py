@@ -1,7 +1,8 @@
 """The model inside an exported FMU (FMI 2.0 co-simulation, through PythonFMU): a circuit of
 the suite stepped by :class:`hydropump_sim.Simulator`.
 
-This file is copied into the FMU as it is, beside the data it reads from the FMU's
+This file is copied into the FMU as it is (the circuit's logic is the plant library's
+:class:`hydropump_sim.block.CircuitBlock`), beside the data it reads from the FMU's
 resources: ``circuit.yaml``, the plant file ``plant.yaml`` (when the circuit names one) and
 ``hydropump_fmu.yaml`` (the set values, the step and the stop time). No file of the user
 becomes code: names and values are read as data when the FMU is instantiated, and the
@@ -53,69 +54,33 @@ class Hydropump(Fmi2Slave):
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        import numpy as np
         import yaml
 
-        from hydropump_sim.circuit import load_circuit
-        from hydropump_sim.measure import SIGNALS
+        from hydropump_sim.block import CircuitBlock
         self.modelName = 'hydropump'
         res = Path(self.resources)
         manifest = yaml.safe_load((res / MANIFEST).read_text())
         plant = res / 'plant.yaml'
-        self._plant = plant if plant.is_file() else None
-        self._sets = dict(manifest.get('sets') or {})
-        self._circuit_file = res / 'circuit.yaml'
-        self.circuit = load_circuit(self._circuit_file, self._sets, self._plant)
-        self.dt = float(manifest['step'])
-        self.default_experiment = DefaultExperiment(0.0, float(manifest['stop_time']),
-                                                    self.dt)
-        c = self.circuit
-        self.u = c.u0.copy()
-        for k, name in enumerate(c.inputs):
-            lo, hi = c.input_ranges[k]
+        self.block = b = CircuitBlock(res / 'circuit.yaml', manifest.get('sets'),
+                                      plant if plant.is_file() else None, manifest['step'])
+        self.default_experiment = DefaultExperiment(0.0, float(manifest['stop_time']), b.dt)
+        for k, (name, unit, lo, hi) in enumerate(b.inputs):
             self.register_variable(_SIReal(
-                name, c.input_units[k], lo, hi, causality=Fmi2Causality.input,
-                variability=Fmi2Variability.continuous, start=float(self.u[k]),
-                getter=lambda k=k: float(self.u[k]),
-                setter=lambda v, k=k: self._set_input(k, v)))
-        measured = c.measured()
-        self.y = np.zeros(len(c.signals))
-        self._outputs = []
-        for name, info in SIGNALS.items():
-            if name in measured:
-                j = c.signal_index(measured[name])
-                self._outputs.append(j)
-                self.register_variable(_SIReal(
-                    name, info.unit, causality=Fmi2Causality.output,
-                    variability=Fmi2Variability.continuous, description=info.label,
-                    getter=lambda j=j: float(self._outputs_now()[j])))
-        self.values = {}
-        for name, unit, lo, hi, value in parameters(c):
-            if name in c.inputs:      # the start of an input of the same name: the input
-                continue
-            self.values[name] = value
+                name, unit, lo, hi, causality=Fmi2Causality.input,
+                variability=Fmi2Variability.continuous, start=float(b.u[k]),
+                getter=lambda k=k: float(b.u[k]),
+                setter=lambda v, k=k: b.set_input(k, v)))
+        for j, (name, unit, label) in enumerate(b.outputs):
             self.register_variable(_SIReal(
-                name, unit, lo, hi, causality=Fmi2Causality.parameter,
+                name, unit, causality=Fmi2Causality.output,
+                variability=Fmi2Variability.continuous, description=label,
+                getter=lambda j=j: b.output(j)))
+        for name, value in b.values.items():
+            self.register_variable(_SIReal(
+                name, b.units[name], *b.ranges[name], causality=Fmi2Causality.parameter,
                 variability=Fmi2Variability.fixed, start=value,
-                getter=lambda n=name: self.values[n],
-                setter=lambda v, n=name: self.values.__setitem__(n, float(v))))
-        self._given = dict(self.values)
-        self.sim = None
-        self._fresh = False
-
-    def _set_input(self, k: int, value: float) -> None:
-        lo, hi = self.circuit.input_ranges[k]
-        self.u[k] = min(max(float(value), lo), hi)
-        self._fresh = False
-
-    def _outputs_now(self):
-        """The signals at the present state and inputs: an input set after a step shows in
-        the outputs that pass it through (the current), as FMI 2.0 asks."""
-        if self.sim is not None and not self._fresh:
-            self.sim.u[:] = self.u
-            self.y[:] = self.sim.outputs()
-            self._fresh = True
-        return self.y
+                getter=lambda n=name: b.values[n],
+                setter=lambda v, n=name: b.values.__setitem__(n, float(v))))
 
     def to_xml(self, model_options=None) -> Element:
         root = super().to_xml(model_options or {})
@@ -139,50 +104,14 @@ class Hydropump(Fmi2Slave):
 
     def exit_initialization_mode(self):
         from hydropump_sim.errors import HydropumpError
-        from hydropump_sim.simulate import Simulator
-        changed = {n: v for n, v in self.values.items() if v != self._given[n]}
         try:
-            if changed:
-                self.circuit = self.circuit.with_values(changed)
+            self.block.start()
         except HydropumpError as exc:
             self.log(str(exc), Fmi2Status.error)
             raise
-        self.sim = Simulator(self.circuit, dt=self.dt,
-                             inputs=dict(zip(self.circuit.inputs, self.u)))
-        self._fresh = False
 
     def do_step(self, current_time: float, step_size: float) -> bool:
-        n = round(step_size / self.dt)
-        if n < 1 or abs(n * self.dt - step_size) > 1e-9 * self.dt:
-            self.log(f'step {step_size:g} s: the FMU steps in whole {self.dt:g} s '
-                     'increments (the step of its default experiment)', Fmi2Status.error)
-            return False
-        self.sim.u[:] = self.u
-        for _ in range(n):
-            self.sim.step()
-        self._fresh = False
-        return True
-
-
-def parameters(circuit) -> list[tuple[str, str, float | None, float | None, float]]:
-    """``(name, unit, min, max, value)`` of each real parameter of the circuit's top-level
-    primitive components (``<component>.<parameter>``, the names ``--set`` takes)."""
-    import math
-
-    from hydropump_sim.schema import to_flat
-    out = []
-    for part in circuit.parts:
-        comp = part.comp
-        if '.' in comp.name:      # a part of a composite: set through its composite
-            continue
-        specs = type(comp).param_specs()
-        # The pump's parameters are its plant params file's (the paper's groups).
-        own = getattr(comp.params, 'plant', comp.params)
-        for key, value in to_flat(own).items():
-            s = specs.get(key)
-            if s is None or s.type is not float or isinstance(value, bool) \
-                    or not isinstance(value, (int, float)) or not math.isfinite(value):
-                continue
-            lo, hi = s.range
-            out.append((f'{comp.name}.{key}', s.unit, lo, hi, float(value)))
-    return out
+        why = self.block.advance(step_size)
+        if why:
+            self.log(why, Fmi2Status.error)
+        return why is None
