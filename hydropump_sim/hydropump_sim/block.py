@@ -1,8 +1,9 @@
 """A circuit as a block stepped in fixed increments: its inputs by name, held; the suite's
 measured signals it has, out; the real parameters of its top-level components by name,
-applied when it starts (the circuit made again with them). What an exported FMU wraps, for
-FMI 2.0 and 3.0 alike (hydropump_ctrl/fmi/): the FMU's model script registers these as its
-variables and calls :meth:`CircuitBlock.start` and :meth:`CircuitBlock.advance`.
+applied when it starts (the circuit made again with them). What an exported FMU wraps
+(hydropump_ctrl/fmi/hydropump_fmu.py): the FMU's model script registers these as its
+variables and calls :meth:`CircuitBlock.start` and :meth:`CircuitBlock.advance`, so that a
+script for another FMI version wraps the same block.
 
 The block reads its files as data (a circuit file, a plant file, the set values): nothing of
 them becomes code.
