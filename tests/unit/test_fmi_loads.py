@@ -118,3 +118,62 @@ def test_bad_fmu_loads_are_one_line_each(folder):
                                'of this suite does not carry them (export the circuit '
                                'without them)']
     assert not (folder / 'out.fmu').exists()
+
+
+# A line volume a user might bring: its pressure from the net flow into it, p' = beta/V q (q
+# held over the step: exact), from its start p0 (not the suite's code: PythonFMU's only).
+VOLUME = """
+from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Real
+
+
+class Volume(Fmi2Slave):
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.flow = 0.0
+        self.pressure = 0.0
+        self.p0 = 1.0e7
+        self.beta_over_V = 2.0e12
+        for name, causality, variability in (
+                ('flow', Fmi2Causality.input, Fmi2Variability.continuous),
+                ('pressure', Fmi2Causality.output, Fmi2Variability.continuous),
+                ('p0', Fmi2Causality.parameter, Fmi2Variability.fixed),
+                ('beta_over_V', Fmi2Causality.parameter, Fmi2Variability.fixed)):
+            self.register_variable(Real(name, causality=causality, variability=variability))
+
+    def exit_initialization_mode(self):
+        self.pressure = self.p0
+
+    def do_step(self, current_time, step_size):
+        self.pressure += step_size * self.beta_over_V * self.flow
+        return True
+"""
+
+
+def test_an_fmu_that_sets_a_nodes_pressure_integrates_its_flow_and_settles_as_the_suite(
+        folder):
+    """``type: fmu_pressure``: the line volume is the FMU's (the flow into it in, the
+    pressure out). Every step its pressure moves by dt beta/V times the flow the circuit
+    published into it a step before; it settles where the same circuit with the suite's own
+    volume settles (a steady state does not depend on the volume)."""
+    fmus.build(folder, 'volume', VOLUME)
+    (folder / 'volume.yaml').write_text(circuit_text(
+        f'{{type: orifice_load, ports: {{in: line}}, mu: {CDA * math.sqrt(2.0 / RHO)!r}, '
+        f'load_pressure: {P_U!r}, aperture: 1.0, gamma: 2.0}}').replace(
+        '  line: {type: volume, ports: {node: line}, V: plant.line.V_l}',
+        '  line: {type: fmu_pressure, ports: {node: line}, file: volume.fmu}'))
+    sim = CoupledSimulator(load_circuit(folder / 'volume.yaml'), 1.0e-3)
+    try:
+        c = sim.model
+        k = [c.signal_index(s) for s in ('line.pressure', 'line.flow')]
+        rows = [sim.outputs()[k].copy()]
+        for _ in range(1500):
+            sim.step()
+            rows.append(sim.outputs()[k].copy())
+    finally:
+        sim.close()
+    p, q = np.array(rows).T
+    assert p[0] == 1.0e7                                    # the FMU's own start
+    np.testing.assert_allclose(np.diff(p), 1.0e-3 * 2.0e12 * q[:-1], rtol=1e-9, atol=1e-3)
+    ref = Simulator(load_circuit(folder / 'suite.yaml'), 1.0e-3)
+    assert abs(p[-1] - p[0]) > 1.0e5 and abs(q[-1]) < 1e-9
+    assert p[-1] == pytest.approx(ref.outputs()[ref.model.signal_index('node:line')], rel=1e-6)

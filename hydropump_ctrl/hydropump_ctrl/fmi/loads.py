@@ -1,24 +1,24 @@
-"""The FMU loads of a circuit (``type: fmu``, hydropump_sim/components/fmu_load.py), stepped
-beside it: explicit co-simulation at the simulator's step.
+"""The FMU loads of a circuit (``type: fmu`` and ``fmu_pressure``,
+hydropump_sim/components/fmu_load.py), stepped beside it: explicit co-simulation at the
+simulator's step.
 
-Before each increment of the circuit every FMU load takes the pressure of its node
-(its ``pressure_input``, Pa gauge), steps over the increment, and its ``flow_output`` is the
-flow the circuit's component draws from the node over that increment (held). A reset starts
-from a steady state of the two together: the held flow the FMU gives at the circuit's
-steady pressure at that flow (:meth:`FmuLoads.start`).
+Before each increment of the circuit every FMU takes what its component gives it (its
+node's pressure [Pa gauge], or the net flow into it [m^3/s]), steps over the increment, and
+its output (the flow it draws, or the node's pressure) is the component's input over that
+increment (held). A reset starts from a steady state of the two together
+(:meth:`FmuLoads.start`).
 
-The explicit coupling is stable while the FMU's flow changes little with the pressure over
-one step of the node's pressure dynamics (``dt beta / V dQ/dp`` well below 1: a load at a
-node with a volume, as every hydraulic port has); a stiffer one rings at the step's
+The explicit coupling is stable while what the FMU gives changes little with what it takes
+over one step of the node's dynamics (a flow load: ``dt beta / V dQ/dp`` well below 1, at a
+node with a volume, as every hydraulic port has; a pressure load: a capacity of its own,
+``dt dP/dQ`` small against the circuit's resistance); a stiffer one rings at the step's
 frequency. Nothing here imports ROS.
 """
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
-from hydropump_sim.components.fmu_load import FmuLoad
 from hydropump_sim.simulate import Simulator
 
 from .export import FmuError
@@ -48,31 +48,30 @@ class FmuLoads:
         problems = []
         for pt in circuit.parts:
             comp = pt.comp
-            if not isinstance(comp, FmuLoad):
+            if 'external' not in comp.ROLES:
                 continue
-            prm = comp.params
-            path = Path(prm.file)
+            fmu_in, signal, fmu_out, circuit_in = comp.exchange()
+            path = Path(comp.params.file)
             path = path if path.is_absolute() else base / path
             try:
-                info = read_fmu(path, inputs=[prm.pressure_input], outputs=[prm.flow_output])
+                info = read_fmu(path, inputs=[fmu_in], outputs=[fmu_out])
             except FmuError as exc:
                 problems += [f'{comp.name}: {ln}' for ln in exc.lines]
                 continue
-            bad = [n for n in (prm.pressure_input, prm.flow_output)
-                   if info.variables[n].type != 'Real']
+            bad = [n for n in (fmu_in, fmu_out) if info.variables[n].type != 'Real']
             if bad:
-                problems.append(f'{comp.name}: {path}: {", ".join(bad)} not Real (the '
-                                'pressure in and the flow out are numbers)')
+                problems.append(f'{comp.name}: {path}: {", ".join(bad)} not Real (what it '
+                                'takes and gives are numbers)')
                 continue
-            self.parts.append((comp.name, info, prm))
+            self.parts.append((comp.name, info, comp.exchange()))
         if problems:
             raise FmuError(problems)
         self.instances = []
         try:
-            for name, info, prm in self.parts:
+            for name, info, (fmu_in, signal, fmu_out, circuit_in) in self.parts:
                 inst = FmuInstance(info, name)
-                self.instances.append((name, inst, inst.vr[prm.pressure_input],
-                                       inst.vr[prm.flow_output]))
+                self.instances.append((name, inst, inst.vr[fmu_in], inst.vr[fmu_out],
+                                       f'{name}.{signal}', f'{name}.{circuit_in}'))
         except BaseException:
             self.close()
             raise
@@ -80,68 +79,72 @@ class FmuLoads:
     def __bool__(self) -> bool:
         return bool(self.parts)
 
-    def _pressures(self, sim: Simulator) -> list[float]:
+    def _given(self, sim: Simulator) -> list[float]:
+        """What each FMU takes from the circuit now (its node's pressure, or the flow into
+        it)."""
         y = sim.outputs()
-        return [float(y[sim.model.signal_index(f'{name}.pressure')])
-                for name, *_ in self.instances]
+        return [float(y[sim.model.signal_index(signal)])
+                for _, _, _, _, signal, _ in self.instances]
 
     def _answer(self, sim: Simulator, j: int) -> float:
-        """FMU ``j`` initialised at its node's pressure now: the flow it answers."""
-        name, inst, p_ref, q_ref = self.instances[j]
-        p = self._pressures(sim)[j]
-        inst.initialise({}, [p_ref], [p], at=sim.t)
-        return float(inst.get([q_ref], at=sim.t)[0])
+        """FMU ``j`` initialised at what it takes now: what it answers."""
+        _, inst, in_ref, out_ref, _, _ = self.instances[j]
+        inst.initialise({}, [in_ref], [self._given(sim)[j]], at=sim.t)
+        return float(inst.get([out_ref], at=sim.t)[0])
 
     def start(self, sim: Simulator) -> str | None:
-        """Every FMU initialised at its node's pressure and ``sim`` reset at their flows,
-        found together: for each FMU in turn the flow ``q`` with ``q = f(P(q))`` (``P(q)``
-        the circuit's steady pressure at that held flow, ``f`` the FMU's answer), by
-        bisection where ``q - f(P(q))`` changes sign between 0 and ``f(P(0))``, else a
-        damped iteration; passes until none moves. Why not, if the answers then differ from
-        the flows held by more than :data:`START_AGREEMENT`."""
+        """Every FMU initialised at what it takes and ``sim`` reset at what they give, found
+        together: for each FMU in turn the held value ``x`` (a flow, or a pressure) with
+        ``x = f(s(x))`` (``s(x)`` what the circuit gives the FMU at its steady state with
+        ``x`` held, ``f`` the FMU's answer after its initialisation), by bisection where
+        ``x - f(s(x))`` changes sign between 0 and ``f(s(0))``, else a damped iteration;
+        passes until none moves. Why not, if the answers then differ from the values held by
+        more than :data:`START_AGREEMENT` (relative)."""
         from scipy.optimize import brentq
         if not self.instances:
             return None
-        flows = [0.0] * len(self.instances)
+        held_values = [0.0] * len(self.instances)
 
-        def held(j: int, q: float) -> float:
-            flows[j] = q
-            Simulator.reset(sim, {f'{n}.flow': v for (n, *_), v in zip(self.instances, flows)},
+        def held(j: int, x: float) -> float:
+            held_values[j] = x
+            Simulator.reset(sim, {inst[5]: v for inst, v in zip(self.instances, held_values)},
                             keep_time=True)
-            return q - self._answer(sim, j)
-        change = math.inf
+            return x - self._answer(sim, j)
+
+        def off(a: list[float], b: list[float]) -> float:
+            return max(abs(x - y) / max(abs(x), abs(y), 1e-12) for x, y in zip(a, b))
         for _ in range(START_PASSES):
-            before = list(flows)
+            before = list(held_values)
             for j in range(len(self.instances)):
                 h0 = held(j, 0.0)
-                q1 = -h0
-                if q1 != 0.0 and h0 * held(j, q1) <= 0.0:
-                    held(j, brentq(lambda q, j=j: held(j, q), min(0.0, q1), max(0.0, q1),
-                                   xtol=START_TOLERANCE * abs(q1), rtol=1e-12))
+                x1 = -h0
+                if x1 != 0.0 and h0 * held(j, x1) <= 0.0:
+                    held(j, brentq(lambda x, j=j: held(j, x), min(0.0, x1), max(0.0, x1),
+                                   xtol=START_TOLERANCE * abs(x1), rtol=1e-12))
                 else:
-                    q = 0.0
+                    x = 0.0
                     for _ in range(START_PASSES):
-                        q += START_DAMPING * -held(j, q)
-                    held(j, q)
-            change = max(abs(a - b) for a, b in zip(flows, before))
-            scale = max(max(abs(q) for q in flows), 1e-12)
+                        x += START_DAMPING * -held(j, x)
+                    held(j, x)
             # One FMU is found in one pass; several until none moves.
-            if len(flows) == 1 or change <= 1e3 * START_TOLERANCE * scale:
+            if len(held_values) == 1 or off(held_values, before) <= 1e3 * START_TOLERANCE:
                 break
-        # Each FMU initialised at the pressure it now sees: does its answer agree?
-        residual = max(abs(held(j, flows[j])) for j in range(len(flows)))
-        if residual <= START_AGREEMENT * max(max(abs(q) for q in flows), 1e-12):
+        # Each FMU initialised at what it now takes: do its answers agree?
+        answers = [held_values[j] - held(j, held_values[j]) for j in range(len(held_values))]
+        worst = off(answers, held_values)
+        if worst <= START_AGREEMENT:
             return None
-        return (f'the FMU loads and the circuit did not settle together: the FMU answers '
-                f'{residual:.3g} m^3/s off the flow held; the run starts from there')
+        return (f'the FMU loads and the circuit did not settle together: an FMU answers '
+                f'{100 * worst:.3g} % off the value held; the run starts from there')
 
     def exchange(self, sim: Simulator) -> None:
-        """One increment of every FMU from its node's pressure now; its flow held by
-        ``sim`` over the increment."""
-        for (name, inst, p_ref, q_ref), p in zip(self.instances, self._pressures(sim)):
-            inst.set([p_ref], [p], at=sim.t)
+        """One increment of every FMU from what it takes from the circuit now; what it gives
+        held by ``sim`` over the increment."""
+        for (_, inst, in_ref, out_ref, _, circuit_in), v in zip(self.instances,
+                                                                self._given(sim)):
+            inst.set([in_ref], [v], at=sim.t)
             inst.step(sim.dt, at=sim.t)
-            sim.set_input(f'{name}.flow', float(inst.get([q_ref], at=sim.t)[0]))
+            sim.set_input(circuit_in, float(inst.get([out_ref], at=sim.t)[0]))
 
     def close(self) -> None:
         for _, inst, *_ in getattr(self, 'instances', []):

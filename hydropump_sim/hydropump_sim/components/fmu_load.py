@@ -1,6 +1,7 @@
 """A user's FMU as a load at a node (``type: fmu``): the FMU (stepped beside the circuit,
 hydropump_ctrl/fmi/loads.py) takes the node's pressure and returns the flow it draws; here
-that flow, held over each step as the input ``flow``, leaves the node.
+that flow, held over each step as the input ``flow``, leaves the node. (``fmu_pressure``,
+the FMU that sets a node's pressure, is in fmu_pressure.py.)
 
 The coupling is explicit co-simulation at the simulator's step: the flow of a step is the
 FMU's answer to the pressure at the step's start. The component holds no FMU itself (the
@@ -48,3 +49,9 @@ class FmuLoad(Component):
     EXTERNAL_RETURN = True
     ROLES = frozenset({'load', 'external'})
     LOAD_SIGNALS = {'pressure': 'pressure', 'flow': 'flow'}
+
+    def exchange(self) -> tuple[str, str, str, str]:
+        """What it trades with its FMU each step: the FMU's input and the signal that gives
+        it, the FMU's output and the input it sets."""
+        prm = self.params
+        return prm.pressure_input, 'pressure', prm.flow_output, 'flow'
