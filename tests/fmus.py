@@ -102,15 +102,21 @@ PUMP = textwrap.dedent("""
 
 
 def build(where: Path, name: str, source: str) -> Path:
-    """``source`` (a PythonFMU slave) built as ``<where>/<name>.fmu``."""
+    """``source`` (a PythonFMU slave) built as ``<where>/<name>.fmu``.
+
+    PythonFMU imports an FMU's model script by its file name, into the one interpreter of
+    the process: two FMUs of one name in a process get the first one's module. The
+    builder's import is dropped again here; each test FMU takes a name of its own."""
     from pythonfmu.builder import FmuBuilder
     script = where / f'{name}.py'
     script.write_text(source)
     sys.path.insert(0, str(where))
+    sys.modules.pop(name, None)
     try:
         return FmuBuilder.build_FMU(script, dest=where / f'{name}.fmu')
     finally:
         sys.path.remove(str(where))
+        sys.modules.pop(name, None)
 
 
 def lag_pump(where: Path, name: str = 'lag_pump', fail_after: float = 0.0) -> Path:

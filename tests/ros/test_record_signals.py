@@ -231,7 +231,8 @@ def test_sigterm_stops_the_graph_of_its_own_and_leaves_a_valid_bag(tmp_path, ros
             ['controller', 'recorder', 'simulator'], cmd.nodes
         rc = cmd.terminate()
         err = ''.join(cmd.err)
-        assert rc == 143, (rc, err)
+        # The whole output in the message (a tuple's repr would cut a traceback short).
+        assert rc == 143, f'exit code {rc}, its output:\n{"".join(cmd.out)}\n{err}'
         assert 'Traceback' not in ''.join(cmd.out) + err, ''.join(cmd.out) + err
         assert err.splitlines() == [
             'stopped by SIGTERM: every node of the run ended, the open bag closed; the bags '
@@ -261,7 +262,7 @@ def test_sigterm_with_attach_closes_the_open_bag_and_leaves_the_nodes(nodes, tes
         cmd, out, t0 = _record(tmp_path, '--attach', test_node=test_node)
         rc = cmd.terminate()
         err = ''.join(cmd.err)
-        assert rc == 143, (rc, err)
+        assert rc == 143, f'exit code {rc}, its output:\n{"".join(cmd.out)}\n{err}'
         assert 'Traceback' not in ''.join(cmd.out) + err, ''.join(cmd.out) + err
         assert err.splitlines() == [
             'stopped by SIGTERM: the open bag closed, the nodes left running; the bags '

@@ -43,10 +43,12 @@ def folder(tmp_path_factory):
     """The orifice FMU (Cd_A 4e-6 m^2, to P_U above tank) and two circuits: the FMU load,
     named relative to the circuit's folder, and the suite's orifice load of the same law."""
     where = tmp_path_factory.mktemp('fmu_load')
-    fmus.build(where, 'orifice', fmus.ORIFICE.replace('self.Cd_A = 2.0e-6', f'self.Cd_A = {CDA!r}')
+    # A name of its own: tests/fmus.py's orifice, with other values, is built elsewhere.
+    fmus.build(where, 'orifice_4e6',
+               fmus.ORIFICE.replace('self.Cd_A = 2.0e-6', f'self.Cd_A = {CDA!r}')
                .replace('max(self.pressure, 0.0)', f'max(self.pressure - {P_U!r}, 0.0)'))
     (where / 'fmu.yaml').write_text(circuit_text(
-        '{type: fmu, ports: {in: line}, file: orifice.fmu}'))
+        '{type: fmu, ports: {in: line}, file: orifice_4e6.fmu}'))
     mu = CDA * math.sqrt(2.0 / RHO)
     (where / 'suite.yaml').write_text(circuit_text(
         f'{{type: orifice_load, ports: {{in: line}}, mu: {mu!r}, load_pressure: {P_U!r}, '
@@ -100,11 +102,11 @@ def test_bad_fmu_loads_are_one_line_each(folder):
         CoupledSimulator(load_circuit(folder / 'missing.yaml'))
     assert err.value.lines == [f'load: {folder / "none.fmu"}: no such file']
     (folder / 'unmapped.yaml').write_text(circuit_text(
-        '{type: fmu, ports: {in: line}, file: orifice.fmu, pressure_input: p_in}'))
+        '{type: fmu, ports: {in: line}, file: orifice_4e6.fmu, pressure_input: p_in}'))
     with pytest.raises(FmuError) as err:
         CoupledSimulator(load_circuit(folder / 'unmapped.yaml'))
     (line,) = err.value.lines
-    assert line.startswith(f'load: {folder / "orifice.fmu"}: ') and 'p_in' in line, line
+    assert line.startswith(f'load: {folder / "orifice_4e6.fmu"}: ') and 'p_in' in line, line
     # The plant library steps no FMU: simulate() and a plain stepper say where it runs,
     # and an exported FMU would not carry it.
     with pytest.raises(InputError, match='simulate: load step beside the circuit'):
@@ -155,12 +157,12 @@ def test_an_fmu_that_sets_a_nodes_pressure_integrates_its_flow_and_settles_as_th
     pressure out). Every step its pressure moves by dt beta/V times the flow the circuit
     published into it a step before; it settles where the same circuit with the suite's own
     volume settles (a steady state does not depend on the volume)."""
-    fmus.build(folder, 'volume', VOLUME)
+    fmus.build(folder, 'line_volume', VOLUME)
     (folder / 'volume.yaml').write_text(circuit_text(
         f'{{type: orifice_load, ports: {{in: line}}, mu: {CDA * math.sqrt(2.0 / RHO)!r}, '
         f'load_pressure: {P_U!r}, aperture: 1.0, gamma: 2.0}}').replace(
         '  line: {type: volume, ports: {node: line}, V: plant.line.V_l}',
-        '  line: {type: fmu_pressure, ports: {node: line}, file: volume.fmu}'))
+        '  line: {type: fmu_pressure, ports: {node: line}, file: line_volume.fmu}'))
     sim = CoupledSimulator(load_circuit(folder / 'volume.yaml'), 1.0e-3)
     try:
         c = sim.model
