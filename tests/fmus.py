@@ -41,10 +41,10 @@ ORIFICE = textwrap.dedent("""
 
 
 # A pump as a user might model it elsewhere: the flow follows the current through a first
-# lag of gain ``gain`` [m^3/s/A] above 0.3 A and time constant ``tau`` [s] (ten explicit Euler
-# steps per step), the line pressure rises with the flow over the load's resistance; its
-# outputs carry a seeded Gaussian noise of ``noise`` times their own scale (0: none); it
-# fails on purpose past ``fail_after`` [s] (0: never), saying why.
+# lag of gain ``gain`` [m^3/s/A] above 0.3 A and time constant ``tau`` [s] (``substeps``
+# explicit Euler steps per step, ten by default), the line pressure rises with the flow over
+# the load's resistance; its outputs carry a seeded Gaussian noise of ``noise`` times their
+# own scale (0: none); it fails on purpose past ``fail_after`` [s] (0: never), saying why.
 PUMP = textwrap.dedent("""
     import random
 
@@ -62,6 +62,7 @@ PUMP = textwrap.dedent("""
             self.gain = 1.0e-3
             self.noise = 0.0
             self.fail_after = 0.0
+            self.substeps = 10.0
             self.q = 0.0
             self.rng = random.Random(1)
             for name, causality, variability in (
@@ -71,7 +72,8 @@ PUMP = textwrap.dedent("""
                     ('tau', Fmi2Causality.parameter, Fmi2Variability.fixed),
                     ('gain', Fmi2Causality.parameter, Fmi2Variability.fixed),
                     ('noise', Fmi2Causality.parameter, Fmi2Variability.fixed),
-                    ('fail_after', Fmi2Causality.parameter, Fmi2Variability.fixed)):
+                    ('fail_after', Fmi2Causality.parameter, Fmi2Variability.fixed),
+                    ('substeps', Fmi2Causality.parameter, Fmi2Variability.fixed)):
                 self.register_variable(Real(name, causality=causality,
                                             variability=variability))
 
@@ -92,7 +94,7 @@ PUMP = textwrap.dedent("""
             if self.fail_after and current_time >= self.fail_after:
                 self.log('the pump model diverged (made to, for the test)', Fmi2Status.error)
                 return False
-            n = 10
+            n = max(1, int(self.substeps))
             h = step_size / n
             for _ in range(n):
                 self.q += h * (self._target() - self.q) / self.tau

@@ -1,9 +1,11 @@
 """Calibrating a user's FMU from bags recorded through the nodes, as a user does it: the
 installed simulator runs the first-order pump FMU of tests/fmus.py (not the suite's code)
-with perturbed parameters and measurement noise given as ``fmu_parameters``, the
-controller and the recorder beside it; ``hydropump record --attach`` records a plan;
-``hydropump calibrate --fmu`` fits the FMU at its own starts (no noise) to the bags; the
-params file it writes starts a simulator with the calibrated values."""
+with perturbed parameters, measurement noise and a finer integration (200 Euler steps a
+step: nearly the exact lag) given as ``fmu_parameters``, the controller and the recorder
+beside it; ``hydropump record --attach`` records a plan; ``hydropump calibrate --fmu`` fits
+the FMU at its own starts (no noise, its own ten Euler steps) to the bags: the data are not
+the fitted model's; the params file it writes starts a simulator with the calibrated
+values."""
 
 from pathlib import Path
 
@@ -46,7 +48,7 @@ def test_an_fmu_is_calibrated_from_bags_recorded_through_the_nodes(nodes, test_n
     path = fmus.lag_pump(tmp_path)
     # (An integer is a number too: fail_after:=0.)
     truth = [f'fmu_parameters.{n}:={v!r}' for n, v in
-             {**TRUTH, 'noise': NOISE, 'fail_after': 0}.items()]
+             {**TRUTH, 'noise': NOISE, 'substeps': 200.0, 'fail_after': 0}.items()]
     sim = nodes.start('simulator', '-p', f'fmu_file:={path}', '-p', 'lock_step:=true',
                       '-p', 'start_paused:=true', *[a for t in truth for a in ('-p', t)])
     nodes.start('controller', '-p', 'autostart:=true')

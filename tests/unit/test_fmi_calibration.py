@@ -92,7 +92,7 @@ def test_an_fmu_is_calibrated_to_the_closed_form(lag_pump, recordings, params, t
     (['gian'], None, 'gian: unknown real parameter of '),
     (['tau', 'tau'], None, 'tau is given twice'),
     ([], None, 'no free parameter: name at least one with --free (the parameters of '
-               'lag_pump.fmu: tau, gain, noise, fail_after)'),
+               'lag_pump.fmu: tau, gain, noise, fail_after, substeps)'),
     (['tau'], ['pump_flow'], 'no output pump_flow, which the recordings have'),
 ])
 def test_bad_input_is_one_line(lag_pump, recordings, params, free, signals, line):

@@ -12,6 +12,7 @@ import pytest
 
 from hydropump_ctrl.fmi.export import FmuError
 from hydropump_ctrl.fmi.loads import CoupledSimulator
+from hydropump_sim import invariants
 from hydropump_sim.circuit import load_circuit
 from hydropump_sim.errors import InputError
 from hydropump_sim.simulate import simulate, Simulator
@@ -56,17 +57,25 @@ def folder(tmp_path_factory):
     return where
 
 
-def _run(sim, n=1500, current=0.62):
-    """The line pressure, the load flow and its power at the start and after each step of
-    a current step at the first one."""
+def _run(sim, n=1500, current=None, signals=('node:line', 'load.flow', 'load.work')):
+    """``signals`` at the start and after each of ``n`` steps (a current step to
+    ``current`` at the first one, if given); every physical invariant holds over the whole
+    run (hydropump_sim.invariants: no pressure above a source, none below the cavitation
+    floor, the energy balanced, every value finite)."""
     c = sim.model
-    k = [c.signal_index(s) for s in ('node:line', 'load.flow', 'load.work')]
-    out = [sim.outputs()[k].copy()]
-    sim.set_input('pump.current', current)
+    k = [c.signal_index(s) for s in signals]
+    t, y, u = [sim.t], [sim.outputs().copy()], [sim.u.copy()]
+    if current is not None:
+        sim.set_input('pump.current', current)
     for _ in range(n):
+        u.append(sim.u.copy())         # held over the step that ends at the row
         sim.step()
-        out.append(sim.outputs()[k].copy())
-    return np.array(out)
+        t.append(sim.t)
+        y.append(sim.outputs().copy())
+    y = np.array(y)
+    broken = invariants.check(c, np.array(t), y, np.array(u))
+    assert not broken, invariants.report(broken)
+    return y[:, k]
 
 
 def test_an_fmu_load_runs_as_the_suites_orifice_of_the_same_law(folder):
@@ -74,10 +83,10 @@ def test_an_fmu_load_runs_as_the_suites_orifice_of_the_same_law(folder):
     try:
         assert coupled.reset_note is None
         assert coupled.model.operator_inputs() == []        # the FMU's flow is no operator's
-        got = _run(coupled)
+        got = _run(coupled, current=0.62)
     finally:
         coupled.close()
-    ref = _run(Simulator(load_circuit(folder / 'suite.yaml'), 1.0e-3))
+    ref = _run(Simulator(load_circuit(folder / 'suite.yaml'), 1.0e-3), current=0.62)
     p, q, w = got.T
     # The start is the steady state of both together: the suite's, within its solver's
     # tolerance (the line pressure is steep in the flow where the pump's flow is flat in it).
@@ -165,15 +174,9 @@ def test_an_fmu_that_sets_a_nodes_pressure_integrates_its_flow_and_settles_as_th
         '  line: {type: fmu_pressure, ports: {node: line}, file: line_volume.fmu}'))
     sim = CoupledSimulator(load_circuit(folder / 'volume.yaml'), 1.0e-3)
     try:
-        c = sim.model
-        k = [c.signal_index(s) for s in ('line.pressure', 'line.flow')]
-        rows = [sim.outputs()[k].copy()]
-        for _ in range(1500):
-            sim.step()
-            rows.append(sim.outputs()[k].copy())
+        p, q = _run(sim, signals=('line.pressure', 'line.flow')).T
     finally:
         sim.close()
-    p, q = np.array(rows).T
     assert p[0] == 1.0e7                                    # the FMU's own start
     np.testing.assert_allclose(np.diff(p), 1.0e-3 * 2.0e12 * q[:-1], rtol=1e-9, atol=1e-3)
     ref = Simulator(load_circuit(folder / 'suite.yaml'), 1.0e-3)

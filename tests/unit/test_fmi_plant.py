@@ -37,7 +37,7 @@ def test_the_stepper_is_the_fmu_run_alone(lag_pump, params):
         assert sim.model.measured() == {'line_flow': 'line_flow',
                                         'line_pressure': 'line_pressure'}
         assert sim.model.parameters() == {'tau': 0.02, 'gain': 1.0e-3, 'noise': 0.0,
-                                          'fail_after': 0.0}
+                                          'fail_after': 0.0, 'substeps': 10.0}
         flow = []
         for i in currents:
             sim.set_input('current', i)
