@@ -127,3 +127,20 @@ def test_the_command_fits_the_fmu_and_ends_bad_input_in_one_line(lag_pump, recor
         assert cli.main(['calibrate', *args, '--report', str(tmp_path / 'r')]) == 2
         (err,) = capsys.readouterr().err.splitlines()
         assert err.startswith(f'error: {line}'), err
+
+
+def test_a_parameter_whose_name_makes_no_ros_parameter_is_refused(recordings, params,
+                                                                  tmp_path):
+    """The calibrated file sets ``fmu_parameters.<name>``: a name no ROS parameter takes is
+    refused before anything runs, in one line."""
+    odd = fmus.PUMP.replace("        self.q = 0.0\n", "        self.q = 0.0\n"
+                            "        setattr(self, 'dead-band', 0.1)\n"
+                            "        self.register_variable(Real('dead-band', causality="
+                            "Fmi2Causality.parameter, variability=Fmi2Variability.fixed))\n",
+                            1)
+    assert odd != fmus.PUMP
+    path = fmus.build(tmp_path, 'odd_pump', odd)
+    with pytest.raises(CalibrationError) as err:
+        calibrate_fmu(path, recordings, params, ['tau', 'dead-band'])
+    assert err.value.lines == ['dead-band: not a name a ROS parameter takes (letters, digits, '
+                               '_ and dots): the calibrated file could not set it']

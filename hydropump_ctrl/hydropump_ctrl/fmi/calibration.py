@@ -51,7 +51,7 @@ from ..ident.calibrate import (
 from ..ident.calibrate.calibration import MISFIT_RATIO
 from ..ident.calibrate.writers import calibration_header
 from ..ident.fit import blas_single_threaded
-from .plant import FMU_PARAMETERS, FmuSimulator
+from .plant import FMU_PARAMETERS, FmuSimulator, ros_name
 
 #: A run whose start current is this far from its first current (a fraction of the
 #: current's range) did not start settled at it: the result says so.
@@ -194,6 +194,9 @@ def free_checker(sim: FmuSimulator):
             elif name not in known:
                 errors.append(unknown_key_line(name, known, f'real parameter of {path}')
                               + f' (its parameters: {", ".join(known) or "none"})')
+            elif not ros_name(name):
+                errors.append(f'{name}: not a name a ROS parameter takes (letters, digits, _ '
+                              'and dots): the calibrated file could not set it')
             seen.add(name)
         return errors
     return check

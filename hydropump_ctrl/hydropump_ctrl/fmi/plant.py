@@ -46,10 +46,16 @@ FMU_PARAMETERS = 'fmu_parameters.'
 _TOKEN = re.compile(r'[A-Za-z][A-Za-z0-9_]*\Z')
 
 
+def ros_name(name: str) -> bool:
+    """Whether an FMU's variable name makes a ROS name: dotted parts, each a letter then
+    letters, digits and ``_`` (a topic ``fmu/<name>``, a parameter
+    ``fmu_parameters.<name>``)."""
+    return all(_TOKEN.match(p) for p in name.split('.'))
+
+
 def topic_of(name: str) -> str | None:
     """``fmu/<name>`` with ``.`` as ``/``, or ``None`` if the name makes no ROS topic."""
-    parts = name.split('.')
-    return 'fmu/' + '/'.join(parts) if all(_TOKEN.match(p) for p in parts) else None
+    return 'fmu/' + name.replace('.', '/') if ros_name(name) else None
 
 
 class FmuModel(Model):

@@ -13,7 +13,6 @@ each an event on ``events``, stamped with the simulation time they happened at.
 
 from __future__ import annotations
 
-import re
 import threading
 import time
 
@@ -27,7 +26,7 @@ from sensor_msgs.msg import FluidPressure, JointState
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
 
-from hydropump_ctrl.fmi.plant import FMU_PARAMETERS
+from hydropump_ctrl.fmi.plant import FMU_PARAMETERS, ros_name
 from hydropump_sim.circuit import default_circuit_path, load_circuit
 from hydropump_sim.errors import HydropumpError
 from hydropump_sim.measure import FLOW_SIGNALS, JOINTS, model_topics, PRESSURE_SIGNALS
@@ -66,8 +65,6 @@ CONFIRM_WINDOW = 0.5
 INPUTS = 'inputs.'
 # s of steady clock between two mirrors of the command topics into their parameters.
 MIRROR_PERIOD = 0.1
-# A ROS parameter name an FMU's parameter may take (others are left undeclared).
-_PARAMETER = re.compile(r'[A-Za-z][A-Za-z0-9_]*(\.[A-Za-z][A-Za-z0-9_]*)*\Z')
 # The runner's events (its stats keys) as the suite's event kinds.
 EVENT_KINDS = {'lock_step_timeouts': LOCK_STEP_TIMEOUT, 'watchdog_trips': SAFE_CURRENT}
 
@@ -249,7 +246,7 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         for name, value in plant.model.parameters().items():
             value = plant.parameter_values.get(name, value)
             key = FMU_PARAMETERS + name
-            if _PARAMETER.match(key):
+            if ros_name(name):    # others make no ROS parameter: left undeclared
                 # The value given (an integer too) is the FMU's already: declared as a float.
                 self.declare_parameter(key, float(value), ParameterDescriptor(
                     read_only=True, description=f'the FMU parameter {name} '
