@@ -64,10 +64,11 @@ class CircuitBlock:
         self.outputs = [(name, info.unit, info.label) for name, info in SIGNALS.items()
                         if name in measured]
         self._index = [c.signal_index(measured[name]) for name, _, _ in self.outputs]
-        self.units = {name: unit for name, unit, *_ in parameters(c)}
-        self.ranges = {name: (lo, hi) for name, _, lo, hi, _ in parameters(c)}
+        own = parameters(c)
+        self.units = {name: unit for name, unit, *_ in own}
+        self.ranges = {name: (lo, hi) for name, _, lo, hi, _ in own}
         # The start of an input of the same name is the input.
-        self.values = {name: v for name, _, _, _, v in parameters(c) if name not in c.inputs}
+        self.values = {name: v for name, _, _, _, v in own if name not in c.inputs}
         self._given = dict(self.values)
         self.y = np.zeros(len(c.signals))
         self.sim = None

@@ -133,7 +133,7 @@ def test_a_parameter_whose_name_makes_no_ros_parameter_is_refused(recordings, pa
                                                                   tmp_path):
     """The calibrated file sets ``fmu_parameters.<name>``: a name no ROS parameter takes is
     refused before anything runs, in one line."""
-    odd = fmus.PUMP.replace("        self.q = 0.0\n", "        self.q = 0.0\n"
+    odd = fmus.PUMP.replace('        self.q = 0.0\n', "        self.q = 0.0\n"
                             "        setattr(self, 'dead-band', 0.1)\n"
                             "        self.register_variable(Real('dead-band', causality="
                             "Fmi2Causality.parameter, variability=Fmi2Variability.fixed))\n",

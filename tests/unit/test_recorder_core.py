@@ -410,6 +410,18 @@ def test_a_topic_whose_publisher_is_discovered_late_gets_its_qos_in_the_bag(tmp_
     assert meta['/b'][1] == 3 and meta['/c'] == ([], 0)
 
 
+def _periods(topics, clock):
+    """A sequencer of ``topics`` fed 300 lock-step periods (a /clock, then each topic's
+    message of that instant, in that order) and the /clock of the 301st instant."""
+    seq = Sequencer(topics, clock=clock)
+    for k in range(300):
+        seq.clock(k * MS, 100 * k)
+        for j, topic in enumerate(topics):
+            seq.message(topic, topic[0].encode(), source_ns=100 * k + 1 + j, stamp_ns=k * MS)
+    seq.clock(300 * MS, 30_000)
+    return seq
+
+
 def test_a_topic_one_period_short_of_the_stop_instant_is_waited_for_briefly():
     """A lock-step simulator publishes its pausing instant's measurements just after that
     instant's /clock: a topic whose latest message is one period before the stop instant is
@@ -417,25 +429,15 @@ def test_a_topic_one_period_short_of_the_stop_instant_is_waited_for_briefly():
     topic published before each increment has none there and is then done."""
     from hydropump_ctrl.recorder.sequencer import EDGE_GRACE
     clock = Clock()
-    seq = Sequencer(['flow', 'joints'], clock=clock)
-    for k in range(300):
-        seq.clock(k * MS, 100 * k)
-        seq.message('flow', b'f', source_ns=100 * k + 1, stamp_ns=k * MS)
-        seq.message('joints', b'j', source_ns=100 * k + 2, stamp_ns=k * MS)
-    seq.clock(300 * MS, 30_000)
+    seq = _periods(['flow', 'joints'], clock)
     seq.message('flow', b'f', source_ns=30_001, stamp_ns=300 * MS)
     clock.t = 1.0                                   # the stop's request
     assert seq.behind(300 * MS, quiet=1.0, since=1.0) == {'joints': 299 * MS}
     seq.message('joints', b'j', source_ns=30_002, stamp_ns=300 * MS)
     assert seq.behind(300 * MS, quiet=1.0, since=1.0) == {}
     # A topic that has none at the instant is done once silent for the grace.
-    seq2 = Sequencer(['flow', 'current'], clock=clock)
     clock.t = 0.0
-    for k in range(300):
-        seq2.clock(k * MS, 100 * k)
-        seq2.message('current', b'c', source_ns=100 * k + 1, stamp_ns=k * MS)
-        seq2.message('flow', b'f', source_ns=100 * k + 2, stamp_ns=k * MS)
-    seq2.clock(300 * MS, 30_000)
+    seq2 = _periods(['current', 'flow'], clock)
     seq2.message('flow', b'f', source_ns=30_002, stamp_ns=300 * MS)
     clock.t = 1.0
     assert seq2.behind(300 * MS, quiet=1.0, since=1.0) == {'current': 299 * MS}

@@ -73,8 +73,6 @@ class FmuEngine:
                  current_range: tuple[float, float]):
         self.sim, self.names, self.exps = sim, tuple(names), list(exps)
         self.n_trajectories = 0
-        self.n_loops = 0
-        self.workers = 1
         inputs = sim.model.plant_inputs()
         self._current = inputs['current']
         #: The FMU's load-pressure input, or None (the recorded one then drives nothing).
@@ -143,7 +141,6 @@ class FmuEngine:
         """The compared signals of every experiment at ``theta`` (cached)."""
         key = np.asarray(theta, float).tobytes()
         if key not in self._cache:
-            self.n_loops += len(self.exps)
             if len(self._cache) > 16:
                 self._cache.clear()
             self._cache[key] = [self.run(theta, e) for e in self.exps]
