@@ -162,3 +162,222 @@ def alone(path, currents, dt: float = 1.0e-3, output: str = 'line_flow'):
             out.append(fmu.getReal([vr[output]])[0])
         fmu.terminate()
     return np.array(out)
+
+
+# The same pump as an FMI 3.0 co-simulation FMU written in C against the standard's headers
+# (those FMPy ships), built with the system's C compiler: neither PythonFMU nor the suite in
+# it. Its lag is integrated exactly over each step (q += (target - q)(1 - exp(-h/tau))), so a
+# run has a closed form to check against; past ``fail_after`` [s] (0: never) a step fails,
+# saying why through the FMU's logger.
+PUMP3_C = textwrap.dedent(r"""
+    #include <math.h>
+    #include <stdlib.h>
+    #include "fmi3PlatformTypes.h"
+    #include "fmi3FunctionTypes.h"
+
+    enum { TIME, CURRENT, FLOW, PRESSURE, TAU, GAIN, FAIL_AFTER, N };
+    typedef struct { double v[N]; double q; fmi3LogMessageCallback log;
+                     fmi3InstanceEnvironment env; } Pump;
+
+    static void start(Pump *p) {
+        p->v[CURRENT] = 0.5; p->v[TAU] = 0.02; p->v[GAIN] = 1.0e-3; p->v[FAIL_AFTER] = 0.0;
+        p->v[TIME] = 0.0; p->q = 0.0;
+    }
+    static void publish(Pump *p) {
+        p->v[FLOW] = p->q;
+        p->v[PRESSURE] = 2.0e6 + 8.0e9 * p->q;
+    }
+    static double target(Pump *p) { return p->v[GAIN] * (p->v[CURRENT] - 0.3); }
+
+    const char *fmi3GetVersion(void) { return "3.0"; }
+
+    fmi3Instance fmi3InstantiateCoSimulation(
+            fmi3String name, fmi3String token, fmi3String resources, fmi3Boolean visible,
+            fmi3Boolean loggingOn, fmi3Boolean eventModeUsed, fmi3Boolean earlyReturnAllowed,
+            const fmi3ValueReference required[], size_t nRequired,
+            fmi3InstanceEnvironment env, fmi3LogMessageCallback log,
+            fmi3IntermediateUpdateCallback update) {
+        Pump *p = calloc(1, sizeof(Pump));
+        if (!p) return NULL;
+        p->log = log; p->env = env;
+        start(p);
+        return p;
+    }
+    void fmi3FreeInstance(fmi3Instance c) { free(c); }
+    fmi3Status fmi3EnterInitializationMode(fmi3Instance c, fmi3Boolean tolDefined,
+            fmi3Float64 tol, fmi3Float64 startTime, fmi3Boolean stopDefined,
+            fmi3Float64 stopTime) {
+        ((Pump *)c)->v[TIME] = startTime;
+        return fmi3OK;
+    }
+    fmi3Status fmi3ExitInitializationMode(fmi3Instance c) {
+        Pump *p = c;
+        p->q = target(p);
+        publish(p);
+        return fmi3OK;
+    }
+    fmi3Status fmi3EnterStepMode(fmi3Instance c) { return fmi3OK; }
+    fmi3Status fmi3Terminate(fmi3Instance c) { return fmi3OK; }
+    fmi3Status fmi3Reset(fmi3Instance c) { start(c); return fmi3OK; }
+    fmi3Status fmi3SetDebugLogging(fmi3Instance c, fmi3Boolean on, size_t n,
+                                   const fmi3String categories[]) { return fmi3OK; }
+    fmi3Status fmi3SetFloat64(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr,
+                              const fmi3Float64 values[], size_t nValues) {
+        Pump *p = c;
+        for (size_t i = 0; i < nvr; i++) {
+            if (vr[i] != CURRENT && vr[i] != TAU && vr[i] != GAIN && vr[i] != FAIL_AFTER)
+                return fmi3Error;
+            p->v[vr[i]] = values[i];
+        }
+        return fmi3OK;
+    }
+    fmi3Status fmi3GetFloat64(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr,
+                              fmi3Float64 values[], size_t nValues) {
+        Pump *p = c;
+        for (size_t i = 0; i < nvr; i++) {
+            if (vr[i] >= N) return fmi3Error;
+            values[i] = p->v[vr[i]];
+        }
+        return fmi3OK;
+    }
+    fmi3Status fmi3DoStep(fmi3Instance c, fmi3Float64 t, fmi3Float64 h,
+                          fmi3Boolean noSetPrior, fmi3Boolean *eventNeeded,
+                          fmi3Boolean *terminate, fmi3Boolean *earlyReturn,
+                          fmi3Float64 *lastTime) {
+        Pump *p = c;
+        *eventNeeded = fmi3False; *terminate = fmi3False; *earlyReturn = fmi3False;
+        *lastTime = t;
+        if (p->v[FAIL_AFTER] > 0.0 && t >= p->v[FAIL_AFTER]) {
+            if (p->log) p->log(p->env, fmi3Error, "logStatusError",
+                               "the pump model diverged (made to, for the test)");
+            return fmi3Error;
+        }
+        p->q += (target(p) - p->q) * (1.0 - exp(-h / p->v[TAU]));
+        p->v[TIME] = t + h;
+        *lastTime = t + h;
+        publish(p);
+        return fmi3OK;
+    }
+    """)
+
+PUMP3_DESCRIPTION = textwrap.dedent("""\
+    <?xml version="1.0" encoding="UTF-8"?>
+    <fmiModelDescription fmiVersion="3.0" modelName="LagPump3"
+        instantiationToken="{8c4e810f-3df3-4a00-8276-176fa3c9f003}"
+        description="A first-order pump in C (FMI 3.0 co-simulation)">
+      <CoSimulation modelIdentifier="NAME" canHandleVariableCommunicationStepSize="true"/>
+      <UnitDefinitions>
+        <Unit name="s"><BaseUnit s="1"/></Unit>
+        <Unit name="A"><BaseUnit A="1"/></Unit>
+        <Unit name="m3/s"><BaseUnit m="3" s="-1"/></Unit>
+        <Unit name="Pa"><BaseUnit kg="1" m="-1" s="-2"/></Unit>
+      </UnitDefinitions>
+      <ModelVariables>
+        <Float64 name="time" valueReference="0" causality="independent"
+            variability="continuous" unit="s"/>
+        <Float64 name="current" valueReference="1" causality="input" variability="continuous"
+            start="0.5" unit="A"/>
+        <Float64 name="line_flow" valueReference="2" causality="output"
+            variability="continuous" unit="m3/s"/>
+        <Float64 name="line_pressure" valueReference="3" causality="output"
+            variability="continuous" unit="Pa"/>
+        <Float64 name="tau" valueReference="4" causality="parameter" variability="fixed"
+            start="0.02" min="0.001" max="1" unit="s"/>
+        <Float64 name="gain" valueReference="5" causality="parameter" variability="fixed"
+            start="0.001" min="1e-05" max="0.1"/>
+        <Float64 name="fail_after" valueReference="6" causality="parameter" variability="fixed"
+            start="0" unit="s"/>
+      </ModelVariables>
+      <ModelStructure>
+        <Output valueReference="2"/>
+        <Output valueReference="3"/>
+        <InitialUnknown valueReference="2"/>
+        <InitialUnknown valueReference="3"/>
+      </ModelStructure>
+    </fmiModelDescription>
+    """)
+
+
+def c_pump3(where: Path, name: str = 'lag_pump3') -> Path:
+    """:data:`PUMP3_C` compiled and packed as ``<where>/<name>.fmu`` (FMI 3.0, Linux x86-64);
+    the test is skipped where no C compiler is installed."""
+    import subprocess
+    import zipfile
+
+    import fmpy
+    import pytest
+    cc = shutil.which('cc') or shutil.which('gcc')
+    if cc is None:
+        pytest.skip('no C compiler (cc) to build the FMI 3.0 test FMU')
+    import re
+    headers = Path(fmpy.__file__).parent / 'c-code'
+    # A host loads every function of the standard: those the pump does not need refuse.
+    every = set(re.findall(r'\bfmi3(\w+)TYPE\b', (headers / 'fmi3FunctionTypes.h').read_text()))
+    have = set(re.findall(r'\bfmi3(\w+)\(', PUMP3_C))
+    stubs = ''.join(f'int fmi3{f}(void) {{ return 3; }}\n' for f in sorted(every - have))
+    src = where / f'{name}.c'
+    src.write_text(PUMP3_C + stubs)
+    lib = where / f'{name}.so'
+    subprocess.run([cc, '-shared', '-fPIC', '-O2', '-o', str(lib), str(src),
+                    '-I', str(headers), '-lm'],
+                   check=True, capture_output=True)
+    out = where / f'{name}.fmu'
+    with zipfile.ZipFile(out, 'w') as z:
+        z.writestr('modelDescription.xml', PUMP3_DESCRIPTION.replace('NAME', name))
+        z.write(lib, f'binaries/x86_64-linux/{name}.so')
+    return out
+
+
+def pump3_closed_form(currents, dt: float = 1.0e-3, tau: float = 0.02, gain: float = 1.0e-3):
+    """:data:`PUMP3_C`'s flow from its equation alone: q_0 at the first current's target,
+    then ``currents[k]`` held over step ``k`` through the exact lag."""
+    import numpy as np
+    a = 1.0 - np.exp(-dt / tau)
+    q = [gain * (currents[0] - 0.3)]
+    for i in currents:
+        q.append(q[-1] + (gain * (i - 0.3) - q[-1]) * a)
+    return np.array(q)
+
+
+def run3(path, inputs, n: int, dt: float = 1.0e-3):
+    """An FMI 3.0 FMU stepped ``n`` times by ``dt`` through FMPy's FMI 3.0 interface as a
+    master orders it: inputs of t_k set, a step to t_k+1, the inputs of t_k+1 set before its
+    outputs are read (``inputs``: name -> n + 1 values). Returns the output names and their
+    values at t_0..t_n."""
+    import fmpy
+    from fmpy.fmi3 import FMU3Slave
+    import numpy as np
+    md = fmpy.read_model_description(str(path))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    outs = [v.name for v in md.modelVariables if v.causality == 'output']
+    where = fmpy.extract(str(path))
+    fmu = FMU3Slave(guid=md.guid, unzipDirectory=where,
+                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName='three')
+    try:
+        fmu.instantiate()
+        fmu.enterInitializationMode(startTime=0.0)
+        for name, u in inputs.items():
+            fmu.setFloat64([vr[name]], [float(u[0])])
+        fmu.exitInitializationMode()
+        rows = [fmu.getFloat64([vr[o] for o in outs])]
+        for k in range(n):
+            for name, u in inputs.items():
+                fmu.setFloat64([vr[name]], [float(u[k])])
+            fmu.doStep(currentCommunicationPoint=k * dt, communicationStepSize=dt)
+            for name, u in inputs.items():
+                fmu.setFloat64([vr[name]], [float(u[k + 1])])
+            rows.append(fmu.getFloat64([vr[o] for o in outs]))
+        fmu.terminate()
+        fmu.freeInstance()           # FMPy frees the library with it
+    finally:
+        shutil.rmtree(where, ignore_errors=True)
+    return outs, np.array(rows)
+
+
+if __name__ == '__main__':
+    # python -m tests.fmus run3 FMU INPUTS.npz OUT.npz N: run3 in a process of its own.
+    import numpy as np
+    _, fmu, given, out, steps = sys.argv[1:]
+    names, values = run3(fmu, dict(np.load(given)), int(steps))
+    np.savez(out, names=np.array(names), values=values)
+    print('written', flush=True)

@@ -1,8 +1,9 @@
 """A user's FMU as the simulator's plant (``fmu_file:=``), through the installed simulator
-over DDS: the FMU is not the suite's (a first-order pump written here with PythonFMU), and
-what the node publishes is compared with FMPy running the same FMU alone on the same
-currents. Bad FMUs stop the node at start-up with one line; a step the FMU fails stops the
-stepping with the FMU's own message."""
+over DDS: the FMU is not the suite's (a first-order pump written here with PythonFMU, FMI
+2.0, or in C, FMI 3.0), and what the node publishes is compared with FMPy running the same
+FMU alone on the same currents (the C one: with its closed form). Bad FMUs stop the node at
+start-up with one line; a step the FMU fails stops the stepping with the FMU's own
+message."""
 
 
 import numpy as np
@@ -24,14 +25,24 @@ def schedule(t):
     return 0.5 if t < 0.05 - 1e-9 else 0.6
 
 
+@pytest.fixture(scope='module')
+def pump3(tmp_path_factory):
+    return fmus.c_pump3(tmp_path_factory.mktemp('pump3'))
+
+
 def _alone(path, n, dt=1.0e-3, period=0.005):
-    """The FMU run by FMPy alone: the current of each control instant held for its period;
-    the line flow at the start, then after each step."""
-    return fmus.alone(path, [schedule(np.floor(k * dt / period + 1e-9) * period)
-                             for k in range(n)], dt)
+    """The FMU run by FMPy alone (the FMI 3.0 one: its closed form): the current of each
+    control instant held for its period; the line flow at the start, then after each
+    step."""
+    currents = [schedule(np.floor(k * dt / period + 1e-9) * period) for k in range(n)]
+    if fmpy.read_model_description(str(path)).fmiVersion == '3.0':
+        return fmus.pump3_closed_form(currents, dt)
+    return fmus.alone(path, currents, dt)
 
 
-def test_the_simulator_publishes_what_the_fmu_computes(nodes, test_node, lag_pump):
+@pytest.mark.parametrize('fmu', ['lag_pump', 'pump3'])
+def test_the_simulator_publishes_what_the_fmu_computes(nodes, test_node, fmu, request):
+    lag_pump = request.getfixturevalue(fmu)
     sim = nodes.start('simulator', '-p', f'fmu_file:={lag_pump}', '-p', 'lock_step:=true',
                       '-p', 'real_time_factor:=0.0')
     got = StepCollector(test_node, ['line_flow', 'fmu/line_flow'])

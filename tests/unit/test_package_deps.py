@@ -33,6 +33,7 @@ THIRD_PARTY = {
     'SALib': ('python3-salib-pip', 'SALib'),
     'fmpy': ('python3-fmpy-pip', 'fmpy'),
     'pythonfmu': ('python3-pythonfmu-pip', 'pythonfmu'),
+    'pythonfmu3': ('python3-pythonfmu3-pip', 'pythonfmu3'),
 }
 # -pip keys the public rosdep database has (rosdep/python.yaml of ros/rosdistro).
 UPSTREAM_PIP = {'python3-rosbags-pip'}

@@ -1,4 +1,4 @@
-"""``hydropump fmu``: a circuit file (the paper's pump by default) as an FMI 2.0
+"""``hydropump fmu``: a circuit file (the paper's pump by default) as an FMI 2.0 or 3.0
 co-simulation FMU for other tools (Amesim, Simscape, OpenModelica, FMPy), checked by FMPy's
 validation before it is written; ``--check FILE.fmu`` reads any FMU as the suite would run
 it and lists its variables (docs/fmi.md)."""
@@ -10,14 +10,14 @@ from .options import output_file, overrides, positive_float, UsageError
 
 def register(sub) -> None:
     c = sub.add_parser('fmu', help="export a circuit (default: the paper's pump) as an FMI "
-                       '2.0 co-simulation FMU')
+                       '2.0 or 3.0 co-simulation FMU')
     c.add_argument('file', nargs='?', help='circuit file (default config/circuits/paper.yaml, '
                    "the paper's pump and load)")
     c.add_argument('--out', help='the FMU file to write (.fmu)')
     c.add_argument('--check', metavar='FMU', help="read an FMU instead (any tool's): one line "
                    'per problem, else its inputs, outputs and parameters with their units')
     c.add_argument('--fmi', choices=('2', '3'), default='2',
-                   help='FMI version (2; 3 needs pythonfmu3, not installed)')
+                   help='FMI version: 2 (the tools of today) or 3')
     c.add_argument('--set', action='append', metavar='NAME=VALUE',
                    help='a parameter or a held input by its dotted name (repeatable)')
     c.add_argument('--step', type=positive_float('s', 1.0), default=1.0e-3,
@@ -40,11 +40,14 @@ def cmd_fmu(args) -> int:
           flush=True)
     done = export_fmu(out, args.file, sets=overrides(args.set), step=args.step,
                       stop_time=args.stop_time, fmi=int(args.fmi))
-    print(f'{done.path}: FMI 2.0 co-simulation, {len(done.inputs)} inputs, '
+    print(f'{done.path}: FMI {args.fmi}.0 co-simulation, {len(done.inputs)} inputs, '
           f'{len(done.outputs)} outputs, {len(done.parameters)} parameters; FMPy '
           'validation: no problem')
     print(f'  inputs: {", ".join(done.inputs)}')
     print(f'  outputs: {", ".join(done.outputs)}')
+    if args.fmi == '3':
+        print('  note: a Python host that ran a PythonFMU3 FMU can abort at its exit, its '
+              'results written (a fault of PythonFMU3; docs/fmi.md)')
     return 0
 
 
@@ -63,6 +66,6 @@ def _check(path: str) -> int:
             rng = f' in [{v.min:g}, {v.max:g}]' if v.min is not None and v.max is not None \
                 else ''
             start = f', start {v.start:g}' if v.start is not None else ''
-            kind = '' if v.type == 'Real' else f' ({v.type})'
+            kind = '' if v.real else f' ({v.type})'
             print(f'    {name}{kind}{unit}{rng}{start}')
     return 0

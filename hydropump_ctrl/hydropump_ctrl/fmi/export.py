@@ -1,6 +1,6 @@
-"""``hydropump fmu``: a circuit file (the paper's pump by default) as an FMI 2.0
-co-simulation FMU, built by PythonFMU around :mod:`.hydropump_fmu` and checked by FMPy's
-validation.
+"""``hydropump fmu``: a circuit file (the paper's pump by default) as an FMI 2.0 or 3.0
+co-simulation FMU, built by PythonFMU (PythonFMU3) around :mod:`.hydropump_fmu`
+(:mod:`.hydropump_fmu3`) and checked by FMPy's validation.
 
 The FMU holds the circuit file, its plant file and a manifest (the ``--set`` values, the
 step, the stop time) as data, and the model script as it ships: nothing of the user's files
@@ -23,11 +23,12 @@ from hydropump_sim.errors import HydropumpError
 from hydropump_sim.files import replacing
 from hydropump_sim.schema import ParamError, read_yaml
 
-#: The model script copied into every FMU.
-SCRIPT = Path(__file__).with_name('hydropump_fmu.py')
+#: The model script copied into an FMU of each FMI version built, and the PythonFMU that
+#: builds it.
+SCRIPTS = {2: (Path(__file__).with_name('hydropump_fmu.py'), 'pythonfmu'),
+           3: (Path(__file__).with_name('hydropump_fmu3.py'), 'pythonfmu3')}
 MANIFEST = 'hydropump_fmu.yaml'
-#: FMI versions built; FMI 3.0 needs pythonfmu3 (not a dependency).
-VERSIONS = (2,)
+VERSIONS = tuple(SCRIPTS)
 
 
 class FmuError(HydropumpError, ValueError):
@@ -68,8 +69,8 @@ def export_fmu(out: str | Path, circuit: str | Path | None = None, *,
         validation refuses.
     """
     if fmi not in VERSIONS:
-        raise FmuError([f'--fmi {fmi}: this suite builds FMI 2.0 co-simulation FMUs (FMI 3.0 '
-                        'needs pythonfmu3, not installed here)'])
+        raise FmuError([f'--fmi {fmi}: this suite builds FMI 2.0 and 3.0 co-simulation FMUs '
+                        '(--fmi 2 or 3)'])
     for what, v in (('step', step), ('stop time', stop_time)):
         if not (isinstance(v, (int, float)) and v > 0 and v < float('inf')):
             raise FmuError([f'{what} = {v!r}: expected a positive number of seconds'])
@@ -90,7 +91,9 @@ def export_fmu(out: str | Path, circuit: str | Path | None = None, *,
         raise FmuError([f'{out}: an FMU file ends in .fmu'])
     if out.is_dir():
         raise FmuError([f'{out}: is a folder; give the FMU file to write'])
-    from pythonfmu.builder import FmuBuilder
+    import importlib
+    script, builder = SCRIPTS[fmi]
+    FmuBuilder = importlib.import_module(f'{builder}.builder').FmuBuilder
 
     from hydropump_sim.block import parameters
     problems: tuple = ()
@@ -107,8 +110,12 @@ def export_fmu(out: str | Path, circuit: str | Path | None = None, *,
         (data / MANIFEST).write_text(yaml.safe_dump(
             {'sets': sets, 'step': float(step), 'stop_time': float(stop_time),
              'circuit': c.name}))
-        FmuBuilder.build_FMU(SCRIPT, dest=built, project_files=sorted(data.iterdir()),
-                             needsExecutionTool='true')
+        # PythonFMU writes the file it is given; PythonFMU3 writes <model>.fmu into a folder.
+        made = FmuBuilder.build_FMU(script, dest=built if fmi == 2 else Path(tmp) / 'fmu',
+                                    project_files=sorted(data.iterdir()),
+                                    needsExecutionTool='true')
+        if Path(made) != Path(built):
+            shutil.move(made, built)
         if validate:
             from fmpy.validation import validate_fmu
             problems = tuple(validate_fmu(str(built)))

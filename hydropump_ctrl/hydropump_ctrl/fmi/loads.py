@@ -58,7 +58,7 @@ class FmuLoads:
             except FmuError as exc:
                 problems += [f'{comp.name}: {ln}' for ln in exc.lines]
                 continue
-            bad = [n for n in (fmu_in, fmu_out) if info.variables[n].type != 'Real']
+            bad = [n for n in (fmu_in, fmu_out) if not info.variables[n].real]
             if bad:
                 problems.append(f'{comp.name}: {path}: {", ".join(bad)} not Real (what it '
                                 'takes and gives are numbers)')

@@ -1,4 +1,4 @@
-"""A user's FMU as the simulator's plant: an FMI 2.0 co-simulation FMU stepped by FMPy with
+"""A user's FMU as the simulator's plant: an FMI 2.0 or 3.0 co-simulation FMU stepped by FMPy with
 the node's step, behind the same interface as :class:`hydropump_sim.Simulator`.
 
 How the FMU meets the suite, by name:
@@ -69,13 +69,13 @@ class FmuModel(Model):
         self.name = info.model_identifier
         self.fluid = params.fluid
         v = info.variables
-        # Value references count per type in FMI 2.0: only the Real ones meet the suite.
-        self.inputs = [n for n in info.of('input') if v[n].type == 'Real']
+        # Value references count per type in FMI 2.0: only the real ones meet the suite.
+        self.inputs = [n for n in info.of('input') if v[n].real]
         self.input_units = [v[n].unit for n in self.inputs]
         self.input_ranges = [(-math.inf if v[n].min is None else v[n].min,
                               math.inf if v[n].max is None else v[n].max) for n in self.inputs]
         self.u0 = np.array([v[n].start or 0.0 for n in self.inputs], dtype=float)
-        self.outputs = [n for n in info.of('output') if v[n].type == 'Real']
+        self.outputs = [n for n in info.of('output') if v[n].real]
         own = [f'pump.{k}' for k in PUMP_SIGNALS if f'pump.{k}' not in self.outputs]
         self.signals = self.outputs + own
         self.signal_units = [v[n].unit for n in self.outputs] + [''] * len(own)
@@ -111,14 +111,14 @@ class FmuModel(Model):
     def parameters(self) -> dict[str, float]:
         """The FMU's real parameters and their starts."""
         return {n: v.start for n, v in self.info.variables.items()
-                if v.causality == 'parameter' and v.type == 'Real' and v.start is not None}
+                if v.causality == 'parameter' and v.real and v.start is not None}
 
 
 def check_plant(info: FmuInfo) -> None:
     """:class:`FmuError` unless the FMU can be the plant: a current input, one measured
     signal out."""
-    names = [n for n in info.of('input') if info.variables[n].type == 'Real']
-    outputs = [n for n in info.of('output') if info.variables[n].type == 'Real']
+    names = [n for n in info.of('input') if info.variables[n].real]
+    outputs = [n for n in info.of('output') if info.variables[n].real]
     problems = []
     if not any(n in names for n in PLANT_INPUTS['current']):
         problems.append(f'{info.path}: no input current or pump.current (the solenoid current '
@@ -164,7 +164,7 @@ class FmuSimulator:
         return self.fmu.messages
 
     def set_parameters(self, values) -> None:
-        """Real parameters of the FMU by name, set from the next :meth:`reset` on (FMI 2.0
+        """Real parameters of the FMU by name, set from the next :meth:`reset` on (FMI
         sets parameters before the initialisation); :class:`FmuError` with a line per name
         that is not one."""
         known = self.model.parameters()

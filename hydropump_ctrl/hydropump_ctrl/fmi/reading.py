@@ -24,6 +24,11 @@ MAX_ENTRIES = 100_000
 MAX_UNPACKED = 4 * 2 ** 30
 
 
+#: The FMI versions the suite runs, and the types of their 64-bit reals.
+VERSIONS = ('2.0', '3.0')
+REAL_TYPES = ('Real', 'Float64')
+
+
 @dataclass(frozen=True)
 class Variable:
     """One scalar variable of an FMU: name, causality, unit, start, range (SI as the FMU
@@ -36,6 +41,12 @@ class Variable:
     start: float | None = None
     min: float | None = None
     max: float | None = None
+
+    @property
+    def real(self) -> bool:
+        """Whether the suite sets and reads it: a 64-bit real (FMI 2.0 ``Real``, FMI 3.0
+        ``Float64``)."""
+        return self.type in REAL_TYPES
 
 
 @dataclass(frozen=True)
@@ -79,7 +90,7 @@ def read_fmu(path: str | Path, *, co_simulation: bool = True,
     ------
     FmuError
         One line per problem, naming the file: not a zip, no model description, a
-        description or an archive beyond the bounds, an FMI version other than 2.0, the
+        description or an archive beyond the bounds, an FMI version other than 2.0 or 3.0, the
         wrong interface, no binary for this platform, a named variable missing.
     """
     import fmpy
@@ -113,8 +124,8 @@ def read_fmu(path: str | Path, *, co_simulation: bool = True,
     except Exception as exc:        # FMPy's parser says what is wrong, in its own words
         raise _fail(path, [f'modelDescription.xml: {exc}']) from None
     problems = []
-    if md.fmiVersion != '2.0':
-        problems.append(f'FMI {md.fmiVersion}: the suite runs FMI 2.0 FMUs')
+    if md.fmiVersion not in VERSIONS:
+        problems.append(f'FMI {md.fmiVersion}: the suite runs FMI 2.0 and 3.0 FMUs')
     interface = md.coSimulation if co_simulation else md.modelExchange
     if interface is None:
         have = 'model exchange' if md.modelExchange is not None else 'co-simulation'
