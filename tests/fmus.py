@@ -298,9 +298,12 @@ PUMP3_DESCRIPTION = textwrap.dedent("""\
     """)
 
 
-def c_pump3(where: Path, name: str = 'lag_pump3') -> Path:
-    """:data:`PUMP3_C` compiled and packed as ``<where>/<name>.fmu`` (FMI 3.0, Linux x86-64);
-    the test is skipped where no C compiler is installed."""
+def c_fmu(where: Path, name: str, source: str, description: str, fmi: int) -> Path:
+    """A C FMU (``source`` against the FMI ``fmi`` headers FMPy ships) compiled and packed
+    with its model description as ``<where>/<name>.fmu``, for Linux x86-64. A host loads
+    every function of the standard: those ``source`` does not define are added, refusing
+    (status error). The test is skipped where no C compiler is installed."""
+    import re
     import subprocess
     import zipfile
 
@@ -308,34 +311,221 @@ def c_pump3(where: Path, name: str = 'lag_pump3') -> Path:
     import pytest
     cc = shutil.which('cc') or shutil.which('gcc')
     if cc is None:
-        pytest.skip('no C compiler (cc) to build the FMI 3.0 test FMU')
-    import re
+        pytest.skip('no C compiler (cc) to build the test FMU')
     headers = Path(fmpy.__file__).parent / 'c-code'
-    # A host loads every function of the standard: those the pump does not need refuse.
-    every = set(re.findall(r'\bfmi3(\w+)TYPE\b', (headers / 'fmi3FunctionTypes.h').read_text()))
-    have = set(re.findall(r'\bfmi3(\w+)\(', PUMP3_C))
-    stubs = ''.join(f'int fmi3{f}(void) {{ return 3; }}\n' for f in sorted(every - have))
+    types = (headers / f'fmi{fmi}FunctionTypes.h').read_text()
+    every = set(re.findall(rf'\bfmi{fmi}(\w+)TYPE\b', types))
+    have = set(re.findall(rf'\bfmi{fmi}(\w+)\(', source))
+    stubs = ''.join(f'int fmi{fmi}{f}(void) {{ return 3; }}\n' for f in sorted(every - have))
     src = where / f'{name}.c'
-    src.write_text(PUMP3_C + stubs)
+    src.write_text(source + stubs)
     lib = where / f'{name}.so'
-    subprocess.run([cc, '-shared', '-fPIC', '-O2', '-o', str(lib), str(src),
-                    '-I', str(headers), '-lm'],
-                   check=True, capture_output=True)
+    subprocess.run([cc, '-shared', '-fPIC', '-O2', '-o', str(lib), str(src), '-I', str(headers),
+                    '-lm'], check=True, capture_output=True)
     out = where / f'{name}.fmu'
     with zipfile.ZipFile(out, 'w') as z:
-        z.writestr('modelDescription.xml', PUMP3_DESCRIPTION.replace('NAME', name))
-        z.write(lib, f'binaries/x86_64-linux/{name}.so')
+        z.writestr('modelDescription.xml', description.replace('NAME', name))
+        z.write(lib, f'binaries/{"x86_64-linux" if fmi == 3 else "linux64"}/{name}.so')
     return out
 
 
-def pump3_closed_form(currents, dt: float = 1.0e-3, tau: float = 0.02, gain: float = 1.0e-3):
-    """:data:`PUMP3_C`'s flow from its equation alone: q_0 at the first current's target,
-    then ``currents[k]`` held over step ``k`` through the exact lag."""
+def c_pump3(where: Path, name: str = 'lag_pump3') -> Path:
+    """:data:`PUMP3_C` as an FMI 3.0 co-simulation FMU."""
+    return c_fmu(where, name, PUMP3_C, PUMP3_DESCRIPTION, 3)
+
+
+# The same pump again as an FMI 2.0 model-exchange FMU in C (the equations only: the host
+# integrates them), with a time event: at ``t_switch`` [s] (0: never) its gain doubles, an
+# instant that falls between communication points. It asks for completed integrator steps
+# and declares its state's nominal (1e-4 m^3/s); past ``fail_after`` [s] (0: never) its
+# derivatives fail, saying why.
+PUMP_ME_C = textwrap.dedent(r"""
+    #include <math.h>
+    #include <stdlib.h>
+    #include "fmi2TypesPlatform.h"
+    #include "fmi2FunctionTypes.h"
+
+    enum { CURRENT, FLOW, PRESSURE, Q, DQ, TAU, GAIN, T_SWITCH, FAIL_AFTER, N };
+    typedef struct { double v[N]; double t; int switched; fmi2CallbackFunctions cb;
+                     const char *name; } Pump;
+
+    static void start(Pump *p) {
+        p->v[CURRENT] = 0.5; p->v[TAU] = 0.02; p->v[GAIN] = 1.0e-3; p->v[T_SWITCH] = 0.0;
+        p->v[FAIL_AFTER] = 0.0; p->v[Q] = 0.0; p->t = 0.0; p->switched = 0;
+    }
+    static double target(Pump *p) {
+        return (p->switched ? 2.0 : 1.0) * p->v[GAIN] * (p->v[CURRENT] - 0.3);
+    }
+    static void update(Pump *p) {
+        p->v[DQ] = (target(p) - p->v[Q]) / p->v[TAU];
+        p->v[FLOW] = p->v[Q];
+        p->v[PRESSURE] = 2.0e6 + 8.0e9 * p->v[Q];
+    }
+
+    const char *fmi2GetTypesPlatform(void) { return "default"; }
+    const char *fmi2GetVersion(void) { return "2.0"; }
+    fmi2Component fmi2Instantiate(fmi2String name, fmi2Type type, fmi2String guid,
+            fmi2String resources, const fmi2CallbackFunctions *functions,
+            fmi2Boolean visible, fmi2Boolean loggingOn) {
+        if (type != fmi2ModelExchange) return NULL;
+        Pump *p = calloc(1, sizeof(Pump));
+        if (!p) return NULL;
+        p->cb = *functions; p->name = "pump";
+        start(p);
+        return p;
+    }
+    void fmi2FreeInstance(fmi2Component c) { free(c); }
+    fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean on, size_t n,
+                                   const fmi2String categories[]) { return fmi2OK; }
+    fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean tolDefined, fmi2Real tol,
+            fmi2Real tStart, fmi2Boolean stopDefined, fmi2Real tStop) {
+        ((Pump *)c)->t = tStart;
+        return fmi2OK;
+    }
+    fmi2Status fmi2EnterInitializationMode(fmi2Component c) { return fmi2OK; }
+    fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
+        Pump *p = c;
+        p->v[Q] = target(p);
+        update(p);
+        return fmi2OK;
+    }
+    fmi2Status fmi2Terminate(fmi2Component c) { return fmi2OK; }
+    fmi2Status fmi2Reset(fmi2Component c) { start(c); return fmi2OK; }
+    fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                           const fmi2Real value[]) {
+        Pump *p = c;
+        for (size_t i = 0; i < nvr; i++) {
+            if (vr[i] != CURRENT && vr[i] < TAU) return fmi2Error;
+            if (vr[i] >= N) return fmi2Error;
+            p->v[vr[i]] = value[i];
+        }
+        update(p);
+        return fmi2OK;
+    }
+    fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                           fmi2Real value[]) {
+        Pump *p = c;
+        update(p);
+        for (size_t i = 0; i < nvr; i++) {
+            if (vr[i] >= N) return fmi2Error;
+            value[i] = p->v[vr[i]];
+        }
+        return fmi2OK;
+    }
+    fmi2Status fmi2SetTime(fmi2Component c, fmi2Real t) { ((Pump *)c)->t = t; return fmi2OK; }
+    fmi2Status fmi2SetContinuousStates(fmi2Component c, const fmi2Real x[], size_t nx) {
+        Pump *p = c;
+        p->v[Q] = x[0];
+        update(p);
+        return fmi2OK;
+    }
+    fmi2Status fmi2GetContinuousStates(fmi2Component c, fmi2Real x[], size_t nx) {
+        x[0] = ((Pump *)c)->v[Q];
+        return fmi2OK;
+    }
+    fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real x[], size_t nx) {
+        x[0] = 1.0e-4;
+        return fmi2OK;
+    }
+    fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real dx[], size_t nx) {
+        Pump *p = c;
+        if (p->v[FAIL_AFTER] > 0.0 && p->t >= p->v[FAIL_AFTER]) {
+            p->cb.logger(p->cb.componentEnvironment, p->name, fmi2Error, "logStatusError",
+                         "the pump model diverged (made to, for the test)");
+            return fmi2Error;
+        }
+        update(p);
+        dx[0] = p->v[DQ];
+        return fmi2OK;
+    }
+    fmi2Status fmi2GetEventIndicators(fmi2Component c, fmi2Real z[], size_t nz) {
+        return fmi2OK;
+    }
+    fmi2Status fmi2EnterEventMode(fmi2Component c) { return fmi2OK; }
+    fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *info) {
+        Pump *p = c;
+        double ts = p->v[T_SWITCH];
+        if (!p->switched && ts > 0.0 && p->t >= ts - 1e-12) p->switched = 1;
+        update(p);
+        info->newDiscreteStatesNeeded = fmi2False;
+        info->terminateSimulation = fmi2False;
+        info->nominalsOfContinuousStatesChanged = fmi2False;
+        info->valuesOfContinuousStatesChanged = fmi2False;
+        info->nextEventTimeDefined = (!p->switched && ts > 0.0) ? fmi2True : fmi2False;
+        info->nextEventTime = ts;
+        return fmi2OK;
+    }
+    fmi2Status fmi2EnterContinuousTimeMode(fmi2Component c) { return fmi2OK; }
+    fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean noSetPrior,
+            fmi2Boolean *enterEventMode, fmi2Boolean *terminate) {
+        *enterEventMode = fmi2False; *terminate = fmi2False;
+        return fmi2OK;
+    }
+    """)
+
+PUMP_ME_DESCRIPTION = textwrap.dedent("""\
+    <?xml version="1.0" encoding="UTF-8"?>
+    <fmiModelDescription fmiVersion="2.0" modelName="LagPumpME"
+        guid="{5d1c7a52-0a7e-4d8e-9a51-2f0e3b6c7e11}" numberOfEventIndicators="0"
+        description="A first-order pump in C (FMI 2.0 model exchange)">
+      <ModelExchange modelIdentifier="NAME" needsCompletedIntegratorStep="true"/>
+      <UnitDefinitions>
+        <Unit name="s"><BaseUnit s="1"/></Unit>
+        <Unit name="A"><BaseUnit A="1"/></Unit>
+        <Unit name="m3/s"><BaseUnit m="3" s="-1"/></Unit>
+        <Unit name="Pa"><BaseUnit kg="1" m="-1" s="-2"/></Unit>
+      </UnitDefinitions>
+      <ModelVariables>
+        <ScalarVariable name="current" valueReference="0" causality="input"
+            variability="continuous"><Real start="0.5" unit="A"/></ScalarVariable>
+        <ScalarVariable name="line_flow" valueReference="1" causality="output"
+            variability="continuous"><Real unit="m3/s"/></ScalarVariable>
+        <ScalarVariable name="line_pressure" valueReference="2" causality="output"
+            variability="continuous"><Real unit="Pa"/></ScalarVariable>
+        <ScalarVariable name="q" valueReference="3" causality="local"
+            variability="continuous" initial="calculated"><Real unit="m3/s"/></ScalarVariable>
+        <ScalarVariable name="der(q)" valueReference="4" causality="local"
+            variability="continuous" initial="calculated"><Real derivative="4"/>
+        </ScalarVariable>
+        <ScalarVariable name="tau" valueReference="5" causality="parameter"
+            variability="fixed" initial="exact"><Real start="0.02" unit="s"/></ScalarVariable>
+        <ScalarVariable name="gain" valueReference="6" causality="parameter"
+            variability="fixed" initial="exact"><Real start="0.001"/></ScalarVariable>
+        <ScalarVariable name="t_switch" valueReference="7" causality="parameter"
+            variability="fixed" initial="exact"><Real start="0" unit="s"/></ScalarVariable>
+        <ScalarVariable name="fail_after" valueReference="8" causality="parameter"
+            variability="fixed" initial="exact"><Real start="0" unit="s"/></ScalarVariable>
+      </ModelVariables>
+      <ModelStructure>
+        <Outputs><Unknown index="2"/><Unknown index="3"/></Outputs>
+        <Derivatives><Unknown index="5"/></Derivatives>
+        <InitialUnknowns>
+          <Unknown index="2"/><Unknown index="3"/><Unknown index="4"/><Unknown index="5"/>
+        </InitialUnknowns>
+      </ModelStructure>
+    </fmiModelDescription>
+    """)
+
+
+def c_pump_me(where: Path, name: str = 'lag_pump_me') -> Path:
+    """:data:`PUMP_ME_C` as an FMI 2.0 model-exchange FMU."""
+    return c_fmu(where, name, PUMP_ME_C, PUMP_ME_DESCRIPTION, 2)
+
+
+def lag_closed_form(currents, dt: float = 1.0e-3, tau: float = 0.02, gain: float = 1.0e-3,
+                    t_switch: float = 0.0):
+    """The C pumps' flow from their equation alone: q_0 at the first current's target,
+    then ``currents[k]`` held over step ``k`` through the exact lag, the gain doubled from
+    ``t_switch`` on (0: never), mid-step where it falls there."""
     import numpy as np
-    a = 1.0 - np.exp(-dt / tau)
     q = [gain * (currents[0] - 0.3)]
-    for i in currents:
-        q.append(q[-1] + (gain * (i - 0.3) - q[-1]) * a)
+    for k, i in enumerate(currents):
+        t0, t1, x = k * dt, (k + 1) * dt, q[-1]
+        g = lambda t: gain * (2.0 if 0.0 < t_switch <= t + 1e-12 else 1.0)  # noqa: E731
+        if t0 < t_switch < t1:
+            x = g(t0) * (i - 0.3) + (x - g(t0) * (i - 0.3)) * np.exp(-(t_switch - t0) / tau)
+            t0 = t_switch
+        q.append(g(t0) * (i - 0.3) + (x - g(t0) * (i - 0.3)) * np.exp(-(t1 - t0) / tau))
     return np.array(q)
 
 

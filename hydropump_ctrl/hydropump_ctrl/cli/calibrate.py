@@ -138,7 +138,7 @@ def register(sub) -> None:
                    help='one start only (by default two more when the first does not reach '
                         'the noise level)')
     c.add_argument('--fmu', metavar='MODEL.fmu',
-                   help="fit the real parameters of this FMI 2.0 or 3.0 co-simulation FMU instead "
+                   help="fit the real parameters of this FMI 2.0 or 3.0 FMU instead "
                         "of the suite's model: its input current takes the recorded "
                         'command, its outputs named after measured signals are compared; '
                         'writes a params file of the simulator node (fmu_file and the '

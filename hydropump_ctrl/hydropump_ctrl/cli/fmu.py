@@ -55,7 +55,9 @@ def _check(path: str) -> int:
     from ..fmi.reading import read_fmu
     info = read_fmu(path)
     md = info.description
-    print(f'{path}: FMI {info.fmi_version} co-simulation, model {info.model_identifier} '
+    how = ('model exchange (integrated by the suite)' if info.model_exchange
+           else 'co-simulation')
+    print(f'{path}: FMI {info.fmi_version} {how}, model {info.model_identifier} '
           f'({md.generationTool or "tool not named"})')
     for causality in ('input', 'output', 'parameter'):
         names = info.of(causality)

@@ -1,5 +1,12 @@
-"""One instance of a user's co-simulation FMU (FMI 2.0 or 3.0), stepped through FMPy: what the
-FMU plant (:mod:`.plant`) and the FMU loads of a circuit (:mod:`.loads`) share.
+"""One instance of a user's FMU (FMI 2.0 or 3.0), stepped through FMPy: what the FMU plant
+(:mod:`.plant`), the FMU loads of a circuit (:mod:`.loads`) and the FMU calibration share.
+
+A co-simulation FMU steps itself. A model-exchange FMU (only the equations: what Amesim
+exports) is integrated here between communication points by CVode (BDF, the SUNDIALS FMPy
+ships), relative tolerance :data:`RTOL` and each state's nominal times it as its absolute
+one; its time, state and step events are handled at the instant they occur, and a change of
+its inputs at a communication point restarts the integration there (the inputs are held
+over each step, as a co-simulation master holds them).
 
 Variables are set and read by name (real ones: FMI 2.0 ``Real``, FMI 3.0 ``Float64``);
 parameters are set before each initialisation (both versions set them in the instantiated
@@ -19,6 +26,9 @@ from hydropump_sim.simulate import IntegrationError
 from .export import FmuError
 from .reading import FmuInfo
 
+#: CVode's relative tolerance for a model-exchange FMU.
+RTOL = 1.0e-6
+
 
 class FmuInstance:
     """The FMU of ``info`` unpacked, loaded and instantiated as ``name``; :meth:`close`
@@ -31,6 +41,7 @@ class FmuInstance:
         self.messages: list[str] = []
         self.time = 0.0                # the FMU's own clock, from its last initialisation
         self._fmu, self._instantiated, self._started = None, False, False
+        self._solver = None            # a model-exchange FMU's integrator, once initialised
         #: The FMI version's prefix of the calls named in errors.
         self.fmi = 'fmi3' if info.fmi_version.startswith('3') else 'fmi2'
         self._where = fmpy.extract(str(info.path))
@@ -41,7 +52,7 @@ class FmuInstance:
             # fails: the process's folder is put back here whatever happens.
             cwd = os.getcwd()
             try:
-                self._fmu = (self._slave3 if self.fmi == 'fmi3' else self._slave2)(name)
+                self._fmu = (self._load3 if self.fmi == 'fmi3' else self._load2)(name)
             finally:
                 os.chdir(cwd)
             self._instantiated = True
@@ -53,13 +64,14 @@ class FmuInstance:
             said = '; '.join(m for m in self.messages if m) or str(exc)
             raise FmuError([f'{info.path}: cannot load or instantiate it: {said}']) from None
 
-    def _slave2(self, name: str):
+    def _load2(self, name: str):
         import fmpy
         from fmpy.fmi2 import (
             fmi2CallbackAllocateMemoryTYPE,
             fmi2CallbackFreeMemoryTYPE,
             fmi2CallbackFunctions,
             fmi2CallbackLoggerTYPE,
+            FMU2Model,
             FMU2Slave,
         )
         callbacks = fmi2CallbackFunctions()
@@ -74,16 +86,18 @@ class FmuInstance:
         except Exception:   # messages then arrive unformatted: still worth keeping
             pass
         self._callbacks = callbacks
-        fmu = FMU2Slave(guid=self.info.description.guid, unzipDirectory=self._where,
-                        modelIdentifier=self.info.model_identifier, instanceName=name)
+        kind = FMU2Model if self.info.model_exchange else FMU2Slave
+        fmu = kind(guid=self.info.description.guid, unzipDirectory=self._where,
+                   modelIdentifier=self.info.model_identifier, instanceName=name)
         self._fmu = fmu          # freed by close() if instantiating fails
         fmu.instantiate(callbacks=callbacks, loggingOn=True)
         return fmu
 
-    def _slave3(self, name: str):
-        from fmpy.fmi3 import FMU3Slave
-        fmu = FMU3Slave(guid=self.info.description.guid, unzipDirectory=self._where,
-                        modelIdentifier=self.info.model_identifier, instanceName=name)
+    def _load3(self, name: str):
+        from fmpy.fmi3 import FMU3Model, FMU3Slave
+        kind = FMU3Model if self.info.model_exchange else FMU3Slave
+        fmu = kind(guid=self.info.description.guid, unzipDirectory=self._where,
+                   modelIdentifier=self.info.model_identifier, instanceName=name)
         self._fmu = fmu
         # FMI 3.0's logger has no instance name and formats its message itself.
         fmu.instantiate(loggingOn=True,
@@ -134,6 +148,9 @@ class FmuInstance:
         self.call(f'{v}ExitInitializationMode', f.exitInitializationMode, at=at)
         self._started = True
         self.time = 0.0
+        if self.info.model_exchange:
+            self._solver = None
+            self._solver = _Integrator(self, at)
 
     def set(self, refs: Sequence[int], values: Sequence[float], at: float | None = None
             ) -> None:
@@ -153,7 +170,12 @@ class FmuInstance:
         return self.call('fmi3GetFloat64', f.getFloat64, list(refs), at=at)
 
     def step(self, dt: float, at: float | None = None) -> None:
-        """``fmi2DoStep`` (``fmi3DoStep``) over ``dt`` from the FMU's own clock."""
+        """``fmi2DoStep`` (``fmi3DoStep``) over ``dt`` from the FMU's own clock; a
+        model-exchange FMU integrated over it."""
+        if self.info.model_exchange:
+            self._solver.advance(self.time + dt, at)
+            self.time += dt
+            return
         done = self.call(f'{self.fmi}DoStep', self._live().doStep,
                          currentCommunicationPoint=self.time, communicationStepSize=dt, at=at)
         if self.fmi == 'fmi3' and done[1]:     # terminateSimulation: the FMU asks to end
@@ -165,6 +187,7 @@ class FmuInstance:
 
     def close(self) -> None:
         """The FMU ended and its unpacked files removed (again: nothing)."""
+        self._solver = None          # CVode's memory, before the library it calls goes
         f, self._fmu = self._fmu, None
         if f is not None:
             try:
@@ -179,3 +202,125 @@ class FmuInstance:
         if self._where:
             shutil.rmtree(self._where, ignore_errors=True)
             self._where = None
+
+
+class _Integrator:
+    """CVode over a model-exchange FMU's continuous states, from its initialisation on (see
+    the module): :meth:`advance` to a communication point, events handled on the way."""
+
+    def __init__(self, inst: FmuInstance, at: float | None):
+        from fmpy.sundials import CVodeSolver
+        self.inst, f, md = inst, inst._fmu, inst.info.description
+        self.v3 = inst.fmi == 'fmi3'
+        self.needs_completed = bool(md.modelExchange.needsCompletedIntegratorStep)
+        self.next_event = self._discrete(at)
+        inst.call(f'{inst.fmi}EnterContinuousTimeMode', f.enterContinuousTimeMode, at=at)
+        self.inputs = self._inputs()
+
+        class Held:               # the inputs are held over a step: nothing to apply
+            def apply(self, *args, **kwargs):
+                pass
+
+        class Solver(CVodeSolver):
+            # FMPy's callbacks let a failing FMU call pass (ctypes prints it, CVode goes on
+            # with what the arrays held): here it ends the integration, unrecoverable.
+            def f(self, *args):
+                try:
+                    return super().f(*args)
+                except Exception:
+                    return -1
+
+            def g(self, *args):
+                try:
+                    return super().g(*args)
+                except Exception:
+                    return -1
+
+        from ctypes import c_double, c_int, c_void_p
+
+        from fmpy.sundials.cvode import sundials_cvode
+        self.stop_at = sundials_cvode.CVodeSetStopTime
+        self.stop_at.argtypes, self.stop_at.restype = [c_void_p, c_double], c_int
+        self.solver = inst.call('CVodeInit', Solver, at=at,
+            nx=md.numberOfContinuousStates, nz=md.numberOfEventIndicators,
+            get_x=f.getContinuousStates, set_x=f.setContinuousStates,
+            get_dx=f.getContinuousStateDerivatives if self.v3 else f.getDerivatives,
+            get_z=f.getEventIndicators, get_nominals=f.getNominalsOfContinuousStates,
+            set_time=f.setTime, input=Held(), startTime=0.0, relativeTolerance=RTOL,
+            maxNumSteps=100_000)
+        # SUNDIALS prints its errors to stderr besides FMPy's handler: only FMPy's (which
+        # puts them in the error raised) is kept.
+        from fmpy.sundials.sundials_context import (
+            SUNContext,
+            SUNContext_PushErrHandler,
+            sundials_core,
+        )
+        clear = sundials_core.SUNContext_ClearErrHandlers
+        clear.argtypes, clear.restype = [SUNContext], c_int
+        clear(self.solver.sunctx)
+        SUNContext_PushErrHandler(self.solver.sunctx, self.solver.ehfun_, None)
+
+    def _inputs(self) -> list[float]:
+        inst = self.inst
+        refs = [inst.vr[n] for n in inst.info.of('input') if inst.info.variables[n].real]
+        return inst.get(refs) if refs else []
+
+    def _discrete(self, at) -> float | None:
+        """The FMU's discrete states updated until it needs no more; the time of its next
+        time event (None: none). :class:`IntegrationError` if it asks to end."""
+        inst, f = self.inst, self.inst._fmu
+        update = f.updateDiscreteStates if self.v3 else f.newDiscreteStates
+        name = f'{inst.fmi}UpdateDiscreteStates' if self.v3 else 'fmi2NewDiscreteStates'
+        for _ in range(1000):
+            needed, terminate, _, _, defined, when = inst.call(name, update, at=at)
+            if terminate:
+                t = inst.time if at is None else at
+                raise IntegrationError(f'the FMU ended the simulation at t = {t:.6g} s of '
+                                       'simulation time: ' + ('; '.join(
+                                           m for m in inst.messages if m) or 'no message'))
+            if not needed:
+                return when if defined else None
+        raise IntegrationError('the FMU did not settle its discrete states in 1000 '
+                               'iterations of an event')
+
+    def _event(self, t: float, at) -> None:
+        inst, f = self.inst, self.inst._fmu
+        inst.call(f'{inst.fmi}EnterEventMode', f.enterEventMode, at=at)
+        self.next_event = self._discrete(at)
+        inst.call(f'{inst.fmi}EnterContinuousTimeMode', f.enterContinuousTimeMode, at=at)
+        self.solver.reset(t)
+
+    def advance(self, t_end: float, at: float | None) -> None:
+        """Integrated from the FMU's clock to ``t_end``; a change of its inputs since the
+        last communication point is an event at the start."""
+        import math
+        inst, f = self.inst, self.inst._fmu
+        t = inst.time
+        inputs = self._inputs()
+        if inputs != self.inputs:
+            self.inputs = inputs
+            self._event(t, at)
+        close = lambda a, b: math.isclose(a, b, rel_tol=1e-12, abs_tol=1e-12)  # noqa: E731
+        for _ in range(1_000_000):
+            if close(t, t_end) or t > t_end:
+                return
+            target = t_end
+            if self.next_event is not None and t < self.next_event < t_end:
+                target = self.next_event
+            # CVode stops at the target, never past it: the FMU is not asked for a time
+            # beyond the communication point (or the event) it is integrated to.
+            self.stop_at(self.solver.cvode_mem, target)
+            _, roots, t = inst.call('CVode', self.solver.step, t, target, at=at)
+            state_event = bool(roots.any())
+            inst.call(f'{inst.fmi}SetTime', f.setTime, t, at=at)
+            step_event = False
+            if self.needs_completed:
+                step_event, terminate = inst.call(
+                    f'{inst.fmi}CompletedIntegratorStep', f.completedIntegratorStep, at=at)
+                if terminate:
+                    raise IntegrationError('the FMU ended the simulation at its completed '
+                                           f'integrator step, t = {t:.6g} s')
+            time_event = self.next_event is not None and close(t, self.next_event)
+            if state_event or step_event or time_event:
+                self._event(t, at)
+        raise IntegrationError(f"the FMU's events did not let time advance past t = {t:.6g} s")

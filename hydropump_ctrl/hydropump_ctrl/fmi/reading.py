@@ -51,13 +51,15 @@ class Variable:
 
 @dataclass(frozen=True)
 class FmuInfo:
-    """A checked FMU: its path, FMI version, model identifier, variables by name."""
+    """A checked FMU: its path, FMI version, model identifier, variables by name, and
+    whether the suite integrates it (model exchange only) or it steps itself."""
 
     path: Path
     fmi_version: str
     model_identifier: str
     description: object       # fmpy's ModelDescription
     variables: dict
+    model_exchange: bool = False
 
     def of(self, causality: str) -> list[str]:
         return [n for n, v in self.variables.items() if v.causality == causality]
@@ -75,14 +77,15 @@ def _fail(path: Path, lines: list[str]) -> FmuError:
     return FmuError([f'{path}: {ln}' for ln in lines])
 
 
-def read_fmu(path: str | Path, *, co_simulation: bool = True,
-             inputs: Iterable[str] = (), outputs: Iterable[str] = ()) -> FmuInfo:
+def read_fmu(path: str | Path, *, inputs: Iterable[str] = (), outputs: Iterable[str] = ()
+             ) -> FmuInfo:
     """The FMU at ``path`` checked for this machine and for the variables a mapping names.
+
+    Its co-simulation interface is the one run where it has one; a model-exchange FMU is
+    integrated by the suite (:mod:`.instance`).
 
     Parameters
     ----------
-    co_simulation : bool
-        Whether it must step itself (co-simulation; else model exchange).
     inputs, outputs : iterable of str
         Variables the caller's mapping names, which the FMU must have with that causality.
 
@@ -90,8 +93,8 @@ def read_fmu(path: str | Path, *, co_simulation: bool = True,
     ------
     FmuError
         One line per problem, naming the file: not a zip, no model description, a
-        description or an archive beyond the bounds, an FMI version other than 2.0 or 3.0, the
-        wrong interface, no binary for this platform, a named variable missing.
+        description or an archive beyond the bounds, an FMI version other than 2.0 or 3.0, no
+        interface the suite runs, no binary for this platform, a named variable missing.
     """
     import fmpy
     path = Path(path)
@@ -126,13 +129,10 @@ def read_fmu(path: str | Path, *, co_simulation: bool = True,
     problems = []
     if md.fmiVersion not in VERSIONS:
         problems.append(f'FMI {md.fmiVersion}: the suite runs FMI 2.0 and 3.0 FMUs')
-    interface = md.coSimulation if co_simulation else md.modelExchange
+    interface = md.coSimulation or md.modelExchange
     if interface is None:
-        have = 'model exchange' if md.modelExchange is not None else 'co-simulation'
-        need = 'co-simulation' if co_simulation else 'model exchange'
-        problems.append(f'{have} only: {need} is needed (the simulator steps the FMU '
-                        'with its own solver)' if co_simulation else
-                        f'{have} only: {need} is needed')
+        problems.append('neither co-simulation nor model exchange: nothing the suite runs '
+                        '(scheduled execution is not run)')
     platforms = fmpy.supported_platforms(str(path))
     if fmpy.platform not in platforms:
         problems.append(f'no binary for this platform ({fmpy.platform}): built for '
@@ -148,4 +148,5 @@ def read_fmu(path: str | Path, *, co_simulation: bool = True,
                                 f'{", ".join(have) or "none"})')
     if problems:
         raise _fail(path, problems)
-    return FmuInfo(path, md.fmiVersion, interface.modelIdentifier, md, variables)
+    return FmuInfo(path, md.fmiVersion, interface.modelIdentifier, md, variables,
+                   model_exchange=md.coSimulation is None)

@@ -27,7 +27,7 @@ def kernel(t, x, dx, u, p, y, P, Q, V):
 
 @dataclass(frozen=True)
 class FmuLoadParams:
-    file: str = spec('-', 'the FMU file (FMI 2.0 or 3.0 co-simulation), relative to the circuit '
+    file: str = spec('-', 'the FMU file (FMI 2.0 or 3.0), relative to the circuit '
                      "file's folder")
     pressure_input: str = spec('-', "the FMU's Real input that takes the node's pressure "
                                '[Pa gauge]', default='pressure')

@@ -21,7 +21,7 @@ def kernel(t, x, dx, u, p, y, P, Q, V):
 
 @dataclass(frozen=True)
 class FmuPressureParams:
-    file: str = spec('-', 'the FMU file (FMI 2.0 or 3.0 co-simulation), relative to the circuit '
+    file: str = spec('-', 'the FMU file (FMI 2.0 or 3.0), relative to the circuit '
                      "file's folder")
     flow_input: str = spec('-', "the FMU's Real input that takes the net flow into it from "
                            'the node [m^3/s]', default='flow')
