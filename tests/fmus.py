@@ -336,28 +336,40 @@ def c_pump3(where: Path, name: str = 'lag_pump3') -> Path:
 
 # The same pump again as an FMI 2.0 model-exchange FMU in C (the equations only: the host
 # integrates them), with a time event: at ``t_switch`` [s] (0: never) its gain doubles, an
-# instant that falls between communication points. It asks for completed integrator steps
-# and declares its state's nominal (1e-4 m^3/s); past ``fail_after`` [s] (0: never) its
-# derivatives fail, saying why.
+# instant that falls between communication points; and a state event: with ``q_max``
+# [m^3/s] (0: none) the plate meets its end stop where the flow reaches q_max (an event
+# indicator q_max - q crosses zero), and stays there until the target falls below it. It
+# asks for completed integrator steps and declares its state's nominal (1e-4 m^3/s); past
+# ``fail_after`` [s] (0: never) its derivatives fail, saying why.
 PUMP_ME_C = textwrap.dedent(r"""
     #include <math.h>
     #include <stdlib.h>
     #include "fmi2TypesPlatform.h"
     #include "fmi2FunctionTypes.h"
 
-    enum { CURRENT, FLOW, PRESSURE, Q, DQ, TAU, GAIN, T_SWITCH, FAIL_AFTER, N };
-    typedef struct { double v[N]; double t; int switched; fmi2CallbackFunctions cb;
+    enum { CURRENT, FLOW, PRESSURE, Q, DQ, TAU, GAIN, T_SWITCH, FAIL_AFTER, Q_MAX, N };
+    typedef struct { double v[N]; double t; int switched, at_stop; fmi2CallbackFunctions cb;
                      const char *name; } Pump;
 
     static void start(Pump *p) {
         p->v[CURRENT] = 0.5; p->v[TAU] = 0.02; p->v[GAIN] = 1.0e-3; p->v[T_SWITCH] = 0.0;
-        p->v[FAIL_AFTER] = 0.0; p->v[Q] = 0.0; p->t = 0.0; p->switched = 0;
+        p->v[FAIL_AFTER] = 0.0; p->v[Q_MAX] = 0.0; p->v[Q] = 0.0; p->t = 0.0;
+        p->switched = 0; p->at_stop = 0;
     }
     static double target(Pump *p) {
         return (p->switched ? 2.0 : 1.0) * p->v[GAIN] * (p->v[CURRENT] - 0.3);
     }
+    static void stop(Pump *p) {     /* the end stop met or left, at an event */
+        double qm = p->v[Q_MAX];
+        if (p->at_stop && target(p) < qm) p->at_stop = 0;
+        if (!p->at_stop && qm > 0.0 && p->v[Q] >= qm - 1e-12) {
+            p->at_stop = 1;
+            p->v[Q] = qm;
+        }
+    }
     static void update(Pump *p) {
         p->v[DQ] = (target(p) - p->v[Q]) / p->v[TAU];
+        if (p->at_stop && p->v[DQ] > 0.0) p->v[DQ] = 0.0;
         p->v[FLOW] = p->v[Q];
         p->v[PRESSURE] = 2.0e6 + 8.0e9 * p->v[Q];
     }
@@ -386,6 +398,8 @@ PUMP_ME_C = textwrap.dedent(r"""
     fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
         Pump *p = c;
         p->v[Q] = target(p);
+        if (p->v[Q_MAX] > 0.0 && p->v[Q] > p->v[Q_MAX]) p->v[Q] = p->v[Q_MAX];
+        stop(p);
         update(p);
         return fmi2OK;
     }
@@ -439,18 +453,23 @@ PUMP_ME_C = textwrap.dedent(r"""
         return fmi2OK;
     }
     fmi2Status fmi2GetEventIndicators(fmi2Component c, fmi2Real z[], size_t nz) {
+        Pump *p = c;
+        double qm = p->v[Q_MAX];
+        z[0] = qm <= 0.0 ? 1.0 : p->at_stop ? qm - target(p) : qm - p->v[Q];
         return fmi2OK;
     }
     fmi2Status fmi2EnterEventMode(fmi2Component c) { return fmi2OK; }
     fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *info) {
         Pump *p = c;
         double ts = p->v[T_SWITCH];
+        double q = p->v[Q];
         if (!p->switched && ts > 0.0 && p->t >= ts - 1e-12) p->switched = 1;
+        stop(p);
         update(p);
         info->newDiscreteStatesNeeded = fmi2False;
         info->terminateSimulation = fmi2False;
         info->nominalsOfContinuousStatesChanged = fmi2False;
-        info->valuesOfContinuousStatesChanged = fmi2False;
+        info->valuesOfContinuousStatesChanged = q != p->v[Q] ? fmi2True : fmi2False;
         info->nextEventTimeDefined = (!p->switched && ts > 0.0) ? fmi2True : fmi2False;
         info->nextEventTime = ts;
         return fmi2OK;
@@ -466,7 +485,7 @@ PUMP_ME_C = textwrap.dedent(r"""
 PUMP_ME_DESCRIPTION = textwrap.dedent("""\
     <?xml version="1.0" encoding="UTF-8"?>
     <fmiModelDescription fmiVersion="2.0" modelName="LagPumpME"
-        guid="{5d1c7a52-0a7e-4d8e-9a51-2f0e3b6c7e11}" numberOfEventIndicators="0"
+        guid="{5d1c7a52-0a7e-4d8e-9a51-2f0e3b6c7e11}" numberOfEventIndicators="1"
         description="A first-order pump in C (FMI 2.0 model exchange)">
       <ModelExchange modelIdentifier="NAME" needsCompletedIntegratorStep="true"/>
       <UnitDefinitions>
@@ -495,6 +514,8 @@ PUMP_ME_DESCRIPTION = textwrap.dedent("""\
             variability="fixed" initial="exact"><Real start="0" unit="s"/></ScalarVariable>
         <ScalarVariable name="fail_after" valueReference="8" causality="parameter"
             variability="fixed" initial="exact"><Real start="0" unit="s"/></ScalarVariable>
+        <ScalarVariable name="q_max" valueReference="9" causality="parameter"
+            variability="fixed" initial="exact"><Real start="0" unit="m3/s"/></ScalarVariable>
       </ModelVariables>
       <ModelStructure>
         <Outputs><Unknown index="2"/><Unknown index="3"/></Outputs>
@@ -513,19 +534,27 @@ def c_pump_me(where: Path, name: str = 'lag_pump_me') -> Path:
 
 
 def lag_closed_form(currents, dt: float = 1.0e-3, tau: float = 0.02, gain: float = 1.0e-3,
-                    t_switch: float = 0.0):
+                    t_switch: float = 0.0, q_max: float = 0.0):
     """The C pumps' flow from their equation alone: q_0 at the first current's target,
     then ``currents[k]`` held over step ``k`` through the exact lag, the gain doubled from
-    ``t_switch`` on (0: never), mid-step where it falls there."""
+    ``t_switch`` on (0: never), mid-step where it falls there; with ``q_max`` (0: none) the
+    flow held at q_max from the instant it reaches it until the target falls below."""
     import numpy as np
-    q = [gain * (currents[0] - 0.3)]
+    g = lambda t: gain * (2.0 if 0.0 < t_switch <= t + 1e-12 else 1.0)  # noqa: E731
+
+    def lag(x, target, s):      # over s seconds, the end stop met on the way
+        if q_max > 0.0 and x >= q_max and target >= q_max:
+            return q_max
+        x = target + (x - target) * np.exp(-s / tau)
+        return min(x, q_max) if q_max > 0.0 and target > q_max else x
+
+    first = g(0.0) * (currents[0] - 0.3)
+    q = [min(first, q_max) if q_max > 0.0 else first]
     for k, i in enumerate(currents):
         t0, t1, x = k * dt, (k + 1) * dt, q[-1]
-        g = lambda t: gain * (2.0 if 0.0 < t_switch <= t + 1e-12 else 1.0)  # noqa: E731
         if t0 < t_switch < t1:
-            x = g(t0) * (i - 0.3) + (x - g(t0) * (i - 0.3)) * np.exp(-(t_switch - t0) / tau)
-            t0 = t_switch
-        q.append(g(t0) * (i - 0.3) + (x - g(t0) * (i - 0.3)) * np.exp(-(t1 - t0) / tau))
+            x, t0 = lag(x, g(t0) * (i - 0.3), t_switch - t0), t_switch
+        q.append(lag(x, g(t0) * (i - 0.3), t1 - t0))
     return np.array(q)
 
 

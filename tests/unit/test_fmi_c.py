@@ -135,6 +135,28 @@ def test_the_plant_integrates_a_model_exchange_fmu_through_its_time_event(pump_m
         sim.close()
 
 
+def test_the_plant_finds_a_model_exchange_fmus_state_event(pump_me, params):
+    """The end stop (an event indicator crossing zero between communication points, 25 ms
+    after the current's step at 20 ms): the flow meets q_max at that instant and never
+    passes it, leaves it when the current falls back at 70 ms, the closed form within 1e-4
+    of the range throughout."""
+    q_max = 3.0e-4
+    currents = np.select([np.arange(120) < 20, np.arange(120) < 70], [0.5, 0.64], 0.5)
+    sim = FmuSimulator(pump_me, params, 1.0e-3)
+    try:
+        sim.set_parameters({'q_max': q_max})
+        sim.reset(inputs={'current': 0.5})
+        flow = _run(sim, currents)
+    finally:
+        sim.close()
+    truth = fmus.lag_closed_form(currents, q_max=q_max)[1:]
+    assert np.max(np.abs(flow - truth)) < 1e-4 * np.ptp(truth)
+    assert flow.max() <= q_max * (1 + 1e-9)
+    at_stop = np.flatnonzero(flow >= q_max * (1 - 1e-9))
+    assert at_stop[0] == 45 and at_stop[-1] == 69           # met at 45.06 ms, left at 70 ms
+    assert flow[-1] < 0.8 * q_max
+
+
 def test_a_failing_model_exchange_fmu_is_its_own_message(pump_me, params):
     sim = FmuSimulator(pump_me, params)
     try:
