@@ -105,9 +105,10 @@ def test_a_failing_fmu_stops_stepping_with_its_own_message(nodes, test_node, tmp
 
 def test_an_fmu_load_in_a_circuit_draws_its_own_flow_at_every_step(nodes, test_node, tmp_path):
     """``type: fmu`` in a circuit behind the installed simulator: the orifice FMU of
-    tests/fmus.py (Cd_A 2e-6 m^2 to tank) at the paper pump's line; every published load
-    flow is the orifice's closed form at the load pressure the node published a step
-    before (explicit co-simulation), from a steady start."""
+    tests/fmus.py (built with Cd_A 2e-6 m^2 to tank, given 3e-6 by the circuit file) at the
+    paper pump's line; every published load flow is the orifice's closed form with the
+    circuit's area at the load pressure the node published a step before (explicit
+    co-simulation), from a steady start; the area is the node's read-only parameter."""
     from sensor_msgs.msg import FluidPressure
 
     from hydropump_sim.params import default_params_path, load_params
@@ -117,7 +118,7 @@ def test_an_fmu_load_in_a_circuit_draws_its_own_flow_at_every_step(nodes, test_n
 plant: {default_params_path()}
 components:
   pump: {{type: pump, ports: {{out: line}}}}
-  load: {{type: fmu, ports: {{in: line}}, file: orifice.fmu}}
+  load: {{type: fmu, ports: {{in: line}}, file: orifice.fmu, parameters: {{Cd_A: 3.0e-6}}}}
   relief: {{type: relief, ports: {{in: line, out: tank}}, p_crack: plant.relief.p_crack,
            p_full: plant.relief.p_full, q_full: plant.relief.q_full}}
   line: {{type: volume, ports: {{node: line}}, V: plant.line.V_l}}
@@ -143,7 +144,13 @@ components:
     both = [(q, pressure[j - 1]) for j, q in zip(k, flow) if j - 1 in pressure]
     assert len(both) > 100
     q, p = np.array(both).T
-    np.testing.assert_allclose(q, 2.0e-6 * np.sqrt(2.0 * np.maximum(p, 0.0) / 850.0),
+    np.testing.assert_allclose(q, 3.0e-6 * np.sqrt(2.0 * np.maximum(p, 0.0) / 850.0),
                                rtol=1e-9)
-    # A steady start (the first steps hold), then the current's step moves the line.
-    assert np.ptp(p[:40]) < 1e-6 * p[0] and np.ptp(p) > 1.0e5
+    from rcl_interfaces.srv import GetParameters
+    client = test_node.create_client(GetParameters, '/simulator/get_parameters')
+    answer = call(test_node, client, GetParameters.Request(names=['fmu_loads.load.Cd_A']))
+    assert answer.values[0].double_value == pytest.approx(3.0e-6)
+    # A steady start (the first steps hold, to the start's stated agreement), then the
+    # current's step moves the line.
+    from hydropump_ctrl.fmi.loads import START_AGREEMENT
+    assert np.ptp(p[:40]) < START_AGREEMENT * p[0] and np.ptp(p) > 1.0e5

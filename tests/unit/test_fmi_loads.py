@@ -131,6 +131,34 @@ def test_bad_fmu_loads_are_one_line_each(folder):
     assert not (folder / 'out.fmu').exists()
 
 
+def test_an_fmu_loads_own_parameters_come_from_the_circuit_file(folder):
+    """``parameters: {Cd_A: ...}`` in the circuit file (or ``--set load.parameters.Cd_A=``)
+    is set in the FMU before each initialisation: its flow is the closed form with that
+    area, not the one it was built with; a name it lacks or a value that is no number is one
+    line."""
+    (folder / 'half.yaml').write_text(circuit_text(
+        '{type: fmu, ports: {in: line}, file: orifice_4e6.fmu, parameters: {Cd_A: 2.0e-6}}'))
+    for circuit in (load_circuit(folder / 'half.yaml'),
+                    load_circuit(folder / 'fmu.yaml', {'load.parameters.Cd_A': 2.0e-6})):
+        coupled = CoupledSimulator(circuit, 1.0e-3)
+        try:
+            assert coupled.loads.parameters() == {'load': {'Cd_A': 2.0e-6}}
+            p, q, _ = _run(coupled, n=50).T
+        finally:
+            coupled.close()
+        np.testing.assert_allclose(q[1:], 2.0e-6 * np.sqrt(2.0 * (p[:-1] - P_U) / RHO),
+                                   rtol=1e-12)
+    for given, line in [
+            ('{Cd_a: 2.0e-6}', f'load.parameters.Cd_a: {folder / "orifice_4e6.fmu"} has no '
+                               'real parameter of that name (did you mean Cd_A?)'),
+            ('{Cd_A: big}', "load.parameters.Cd_A = 'big': not a number")]:
+        (folder / 'bad.yaml').write_text(circuit_text(
+            f'{{type: fmu, ports: {{in: line}}, file: orifice_4e6.fmu, parameters: {given}}}'))
+        with pytest.raises(Exception) as err:
+            CoupledSimulator(load_circuit(folder / 'bad.yaml'))
+        assert any(ln.endswith(line) for ln in err.value.lines), err.value.lines
+
+
 # A line volume a user might bring: its pressure from the net flow into it, p' = beta/V q (q
 # held over the step: exact), from its start p0 (not the suite's code: PythonFMU's only).
 VOLUME = """

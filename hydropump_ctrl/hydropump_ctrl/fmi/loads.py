@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from hydropump_sim.schema import closest_name
 from hydropump_sim.simulate import Simulator
 
 from .export import FmuError
@@ -60,18 +61,28 @@ class FmuLoads:
                 continue
             bad = [n for n in (fmu_in, fmu_out) if not info.variables[n].real]
             if bad:
-                problems.append(f'{comp.name}: {path}: {", ".join(bad)} not Real (what it '
+                problems.append(f'{comp.name}: {path}: {", ".join(bad)} not real (what it '
                                 'takes and gives are numbers)')
                 continue
-            self.parts.append((comp.name, info, comp.exchange()))
+            given = comp.fmu_parameters()
+            known = [n for n, v in info.variables.items()
+                     if v.causality == 'parameter' and v.real]
+            unknown = [n for n in given if n not in known]
+            for n in unknown:
+                close = closest_name(n, known)
+                problems.append(f'{comp.name}.parameters.{n}: {path} has no real parameter '
+                                f'of that name' + (f' (did you mean {close}?)' if close else ''))
+            if unknown:
+                continue
+            self.parts.append((comp.name, info, comp.exchange(), given))
         if problems:
             raise FmuError(problems)
         self.instances = []
         try:
-            for name, info, (fmu_in, signal, fmu_out, circuit_in) in self.parts:
+            for name, info, (fmu_in, signal, fmu_out, circuit_in), given in self.parts:
                 inst = FmuInstance(info, name)
                 self.instances.append((name, inst, inst.vr[fmu_in], inst.vr[fmu_out],
-                                       f'{name}.{signal}', f'{name}.{circuit_in}'))
+                                       f'{name}.{signal}', f'{name}.{circuit_in}', given))
         except BaseException:
             self.close()
             raise
@@ -84,12 +95,22 @@ class FmuLoads:
         it)."""
         y = sim.outputs()
         return [float(y[sim.model.signal_index(signal)])
-                for _, _, _, _, signal, _ in self.instances]
+                for _, _, _, _, signal, _, _ in self.instances]
+
+    def parameters(self) -> dict[str, dict[str, float]]:
+        """Each FMU load's real parameters by name: its starts, those the circuit gives
+        set."""
+        out = {}
+        for name, info, _, given in self.parts:
+            out[name] = {n: v.start for n, v in info.variables.items()
+                         if v.causality == 'parameter' and v.real and v.start is not None}
+            out[name].update(given)
+        return out
 
     def _answer(self, sim: Simulator, j: int) -> float:
         """FMU ``j`` initialised at what it takes now: what it answers."""
-        _, inst, in_ref, out_ref, _, _ = self.instances[j]
-        inst.initialise({}, [in_ref], [self._given(sim)[j]], at=sim.t)
+        _, inst, in_ref, out_ref, _, _, given = self.instances[j]
+        inst.initialise(given, [in_ref], [self._given(sim)[j]], at=sim.t)
         return float(inst.get([out_ref], at=sim.t)[0])
 
     def start(self, sim: Simulator) -> str | None:
@@ -140,8 +161,8 @@ class FmuLoads:
     def exchange(self, sim: Simulator) -> None:
         """One increment of every FMU from what it takes from the circuit now; what it gives
         held by ``sim`` over the increment."""
-        for (_, inst, in_ref, out_ref, _, circuit_in), v in zip(self.instances,
-                                                                self._given(sim)):
+        for (_, inst, in_ref, out_ref, _, circuit_in, _), v in zip(self.instances,
+                                                                   self._given(sim)):
             inst.set([in_ref], [v], at=sim.t)
             inst.step(sim.dt, at=sim.t)
             sim.set_input(circuit_in, float(inst.get([out_ref], at=sim.t)[0]))

@@ -41,8 +41,10 @@ PLANT_INPUTS = {'current': ('current', 'pump.current'),
 #: each is when the FMU does not output ``pump.<name>`` itself (velocities: 0).
 PUMP_SIGNALS = {'x_c': 'spool_position', 'v_c': None, 'x_a': 'actuator_position',
                 'v_a': None, 'P_a': 'actuator_pressure', 'P_l': 'line_pressure'}
-#: The prefix of the FMU's parameters among the simulator node's parameters.
+#: The prefix of the FMU's parameters among the simulator node's parameters, and of a
+#: circuit's FMU loads' (``fmu_loads.<component>.<name>``, read-only).
 FMU_PARAMETERS = 'fmu_parameters.'
+FMU_LOADS = 'fmu_loads.'
 _TOKEN = re.compile(r'[A-Za-z][A-Za-z0-9_]*\Z')
 
 

@@ -10,10 +10,66 @@ plant library steps no FMU): a circuit with one runs behind the simulator node, 
 """
 
 from dataclasses import dataclass
+import math
 
 from ..jitcache import jit
-from ..schema import spec
+from ..schema import ParamError, spec
 from .base import Component, InputSpec, PortSpec, SignalSpec
+
+#: The circuit file's key of an FMU component's own parameters (``parameters: {Cd_A:
+#: 3.0e-6}``, or ``--set boom_load.parameters.Cd_A=3e-6``).
+PARAMETERS = 'parameters'
+
+
+def fmu_parameters_spec():
+    return spec('-', "the FMU's own real parameters set before each initialisation, "
+                'NAME=VALUE (in a circuit file a mapping: parameters: {NAME: VALUE})',
+                default=[])
+
+
+class FmuComponent(Component):
+    """What the two FMU components share: their FMU's own parameters, given by name."""
+
+    @classmethod
+    def build_params(cls, values, source=None):
+        """The parameters, the mapping ``parameters`` (dotted: ``parameters.NAME``) kept as
+        the list ``NAME=VALUE``; each value a finite number (one line each otherwise)."""
+        given = {k[len(PARAMETERS) + 1:]: v for k, v in values.items()
+                 if k.startswith(PARAMETERS + '.')}
+        own = {k: v for k, v in values.items() if not k.startswith(PARAMETERS + '.')}
+        items = own.get(PARAMETERS) or []
+        if not isinstance(items, list):
+            raise ParamError([f"{PARAMETERS}: expected a mapping of the FMU's parameter "
+                              'names to numbers'], source)
+        pairs = _pairs(items) + [
+            (n, float(v) if isinstance(v, (int, float)) and not isinstance(v, bool)
+             and math.isfinite(v) else v) for n, v in given.items()]
+        errors = [f'{PARAMETERS}.{n} = {v!r}: not a number' for n, v in pairs
+                  if not isinstance(v, float)]
+        if errors:
+            raise ParamError(errors, source)
+        own[PARAMETERS] = [f'{n}={v!r}' for n, v in pairs]
+        return super().build_params(own, source)
+
+    def fmu_parameters(self) -> dict[str, float]:
+        """The FMU's own parameters the circuit gives, by name."""
+        return dict(_pairs(self.params.parameters))
+
+
+def _pairs(items) -> list[tuple[str, object]]:
+    """``NAME=VALUE`` items as (name, float), a value that is no finite number as given."""
+    out = []
+    for item in items:
+        name, _, text = str(item).partition('=')
+        value: object = text.strip()
+        try:
+            x = float(text)
+            if math.isfinite(x):
+                value = x
+        except ValueError:
+            pass
+        out.append((name.strip(), value))
+    return out
 
 
 @jit
@@ -29,13 +85,14 @@ def kernel(t, x, dx, u, p, y, P, Q, V):
 class FmuLoadParams:
     file: str = spec('-', 'the FMU file (FMI 2.0 or 3.0), relative to the circuit '
                      "file's folder")
-    pressure_input: str = spec('-', "the FMU's Real input that takes the node's pressure "
+    pressure_input: str = spec('-', "the FMU's real input that takes the node's pressure "
                                '[Pa gauge]', default='pressure')
-    flow_output: str = spec('-', "the FMU's Real output: the flow it draws from the node "
+    flow_output: str = spec('-', "the FMU's real output: the flow it draws from the node "
                             '[m^3/s]', default='flow')
+    parameters: list = fmu_parameters_spec()
 
 
-class FmuLoad(Component):
+class FmuLoad(FmuComponent):
     kind = 'fmu'
     doc = "a user's FMU as a load: the node's pressure in, the flow it draws out"
     Params = FmuLoadParams

@@ -11,7 +11,8 @@ from dataclasses import dataclass
 
 from ..jitcache import jit
 from ..schema import spec
-from .base import Component, InputSpec, PortSpec, SignalSpec
+from .base import InputSpec, PortSpec, SignalSpec
+from .fmu_load import fmu_parameters_spec, FmuComponent
 
 
 @jit
@@ -23,13 +24,14 @@ def kernel(t, x, dx, u, p, y, P, Q, V):
 class FmuPressureParams:
     file: str = spec('-', 'the FMU file (FMI 2.0 or 3.0), relative to the circuit '
                      "file's folder")
-    flow_input: str = spec('-', "the FMU's Real input that takes the net flow into it from "
+    flow_input: str = spec('-', "the FMU's real input that takes the net flow into it from "
                            'the node [m^3/s]', default='flow')
-    pressure_output: str = spec('-', "the FMU's Real output: the node's pressure [Pa gauge]",
+    pressure_output: str = spec('-', "the FMU's real output: the node's pressure [Pa gauge]",
                                 default='pressure')
+    parameters: list = fmu_parameters_spec()
 
 
-class FmuPressureLoad(Component):
+class FmuPressureLoad(FmuComponent):
     kind = 'fmu_pressure'
     doc = "a user's FMU that sets a node's pressure: the flow into it in, the pressure out"
     Params = FmuPressureParams

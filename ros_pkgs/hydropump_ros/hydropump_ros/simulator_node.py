@@ -26,7 +26,7 @@ from sensor_msgs.msg import FluidPressure, JointState
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
 
-from hydropump_ctrl.fmi.plant import FMU_PARAMETERS, ros_name
+from hydropump_ctrl.fmi.plant import FMU_LOADS, FMU_PARAMETERS, ros_name
 from hydropump_sim.circuit import default_circuit_path, load_circuit
 from hydropump_sim.errors import HydropumpError
 from hydropump_sim.measure import FLOW_SIGNALS, JOINTS, model_topics, PRESSURE_SIGNALS
@@ -192,6 +192,7 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
             raise bridge.StartupError([f'{path}: {ln}' for ln in exc.lines or [str(exc)]]) \
                 from None
         try:
+            self._declare_fmu_loads(plant)
             scenario = self._scenario(cfg, circuit)
             self.schema_specs = d.specs
             self.runner = Runner(plant, cfg, profile=SensorProfile.from_config(sensors,
@@ -258,6 +259,19 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
                                  scenario=scenario, log=self._log)
         except HydropumpError as exc:
             raise bridge.StartupError(exc.lines or [str(exc)]) from None
+
+    def _declare_fmu_loads(self, plant) -> None:
+        """The parameters of the circuit's FMU loads, as they start (the FMU's, those the
+        circuit file gives set), as read-only ``fmu_loads.<component>.<name>``."""
+        from rcl_interfaces.msg import ParameterDescriptor
+        loads = getattr(plant, 'loads', None)
+        for comp, values in (loads.parameters() if loads else {}).items():
+            for name, value in values.items():
+                if ros_name(name):    # others make no ROS parameter: left undeclared
+                    self.declare_parameter(f'{FMU_LOADS}{comp}.{name}', float(value),
+                                           ParameterDescriptor(
+                                               read_only=True, description=f'the parameter '
+                                               f'{name} of the FMU of {comp}'))
 
     @staticmethod
     def _scenario(cfg, model):
