@@ -5,6 +5,8 @@ equations only, integrated by the suite, with a time event between communication
 read and checked, stepped as the simulator's plant against their closed form, failing with
 their own message, and calibrated from recordings made in closed form with noise."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -15,7 +17,7 @@ from hydropump_ctrl.fmi.reading import read_fmu
 from hydropump_sim.simulate import IntegrationError
 
 from .. import fmus
-from .test_fmi_calibration import GAIN, recordings, TAU  # noqa: F401 (a fixture)
+from .test_fmi_calibration import _exact, GAIN, recordings, TAU  # noqa: F401 (a fixture)
 
 pytest.importorskip('fmpy')
 
@@ -181,3 +183,31 @@ def test_a_model_exchange_fmu_is_calibrated_to_the_closed_form(pump_me, recordin
     for name, truth in (('gain', GAIN), ('tau', TAU)):
         assert est[name].value == pytest.approx(truth, rel=0.02)
     assert cal.improved and cal.cost < 0.01 * cal.cost_start
+
+
+def test_a_fleet_of_pumps_calibrates_one_fmu(pump3, params, tmp_path, capsys):
+    """``calibrate --fmu --fleet``: the FMU goes to each task as bytes, as it goes to a
+    cluster's workers (here the tasks run in this process), each pump's gain and time
+    constant (other for each) within 2 % of its truth, a params file of the simulator node
+    per pump, one table."""
+    import yaml
+    truth = {'pump_a': (1.2e-3, 0.025), 'pump_b': (0.9e-3, 0.03)}
+    for k, (name, (gain, tau)) in enumerate(truth.items()):
+        (tmp_path / 'fleet' / name).mkdir(parents=True)
+        for j, levels in enumerate(([0.4, 0.6, 0.8, 0.5], [0.6, 0.45, 0.65, 0.35])):
+            _exact(levels, params.fluid.p_atm, 10 * k + j, gain=gain, tau=tau).save(
+                tmp_path / 'fleet' / name / f'run{j}.npz')
+    report = tmp_path / 'report'
+    assert cli.main(['calibrate', '--fmu', str(pump3), '--fleet', str(tmp_path / 'fleet'),
+                     '--free', 'gain', 'tau', '--in-process', '--report', str(report),
+                     '--no-plots', '--json', '--no-progress']) == 0
+    result = json.loads(capsys.readouterr().out)
+    for name, (gain, tau) in truth.items():
+        got = result[name]['parameters']
+        assert got['gain']['value'] == pytest.approx(gain, rel=0.02), name
+        assert got['tau']['value'] == pytest.approx(tau, rel=0.02), name
+        node = yaml.safe_load((report / name / 'calibrated.yaml').read_text())
+        node = node['/**']['ros__parameters']
+        assert node['fmu_file'] == str(pump3.resolve())
+        assert node['fmu_parameters']['tau'] == pytest.approx(tau, rel=0.02)
+    assert (report / 'fleet.csv').is_file()

@@ -25,19 +25,19 @@ def lag_pump(tmp_path_factory):
     return fmus.lag_pump(tmp_path_factory.mktemp('lag'))
 
 
-def _exact(levels, p_atm, seed, n=1200, dwell=0.3, settled_at=None):
+def _exact(levels, p_atm, seed, n=1200, dwell=0.3, settled_at=None, gain=GAIN, tau=TAU):
     """The lag's exact response to a staircase of ``levels`` held ``dwell`` each: the flow
-    q' = (GAIN (I - 0.3) - q) / TAU from rest at the first level (or at ``settled_at`` [A]),
+    q' = (gain (I - 0.3) - q) / tau from rest at the first level (or at ``settled_at`` [A]),
     sampled every DT, with noise of 2e-6 m^3/s on it and 1e4 Pa on the pressure 2 MPa +
     8e9 q (absolute)."""
     rng = np.random.default_rng(seed)
     t = np.arange(n) * DT
     cur = np.asarray(levels)[np.minimum((t / dwell).astype(int), len(levels) - 1)]
     q = np.empty(n)
-    q[0] = GAIN * ((cur[0] if settled_at is None else settled_at) - 0.3)
+    q[0] = gain * ((cur[0] if settled_at is None else settled_at) - 0.3)
     for k in range(n - 1):
-        target = GAIN * (cur[k] - 0.3)
-        q[k + 1] = target + (q[k] - target) * np.exp(-DT / TAU)
+        target = gain * (cur[k] - 0.3)
+        q[k + 1] = target + (q[k] - target) * np.exp(-DT / tau)
     return Recording(t, {'solenoid_current_cmd': cur,
                          'line_flow': q + 2e-6 * rng.standard_normal(n),
                          'line_pressure': 2e6 + 8e9 * q + 1e4 * rng.standard_normal(n) + p_atm},
@@ -122,8 +122,9 @@ def test_the_command_fits_the_fmu_and_ends_bad_input_in_one_line(lag_pump, recor
              f'{tmp_path / "none.fmu"}: no such file'),
             (['--fmu', str(lag_pump), *bags, '--free', 'tua'],
              'tua: unknown real parameter of '),
-            (['--fmu', str(lag_pump), '--fleet', str(tmp_path), '--free', 'tau'],
-             '--fmu with --fleet: an FMU is calibrated in this process, one model at a time')]:
+            (['--fmu', str(lag_pump), *bags, '--workers', '2', '--free', 'tau'],
+             '--fmu with --workers: one FMU is calibrated in this process (a fleet of them, '
+             '--fleet, goes to a cluster)')]:
         assert cli.main(['calibrate', *args, '--report', str(tmp_path / 'r')]) == 2
         (err,) = capsys.readouterr().err.splitlines()
         assert err.startswith(f'error: {line}'), err

@@ -228,11 +228,11 @@ def _executor(args):
 
 
 def cmd_calibrate(args) -> int:
-    if args.fmu and (args.fleet or args.scheduler or args.workers):
-        given = ' '.join(o for o, v in (('--fleet', args.fleet), ('--scheduler', args.scheduler),
+    if args.fmu and not args.fleet and (args.scheduler or args.workers):
+        given = ' '.join(o for o, v in (('--scheduler', args.scheduler),
                                          ('--workers', args.workers)) if v)
-        raise UsageError(f'--fmu with {given}: an FMU is calibrated in this process, one '
-                         'model at a time')
+        raise UsageError(f'--fmu with {given}: one FMU is calibrated in this process (a '
+                         'fleet of them, --fleet, goes to a cluster)')
     if args.fleet:
         return _fleet(args)
     if not args.bags:
@@ -367,7 +367,7 @@ def _fleet(args) -> int:
     priors = _priors(args)
     plant = plant_file(args)
     pumps = find_pumps(args.fleet)
-    inputs = [plant, args.fleet] + ([args.profile] if args.profile else [])
+    inputs = [plant, args.fleet] + [f for f in (args.profile, args.fmu) if f]
     if args.report:
         protect_output(args.report, inputs, 'report folder')
     report = run_dir(args.report, 'calibrate-fleet')
@@ -376,10 +376,16 @@ def _fleet(args) -> int:
                               f'params file of {name}', create=False, kind='plant params')
             for name in pumps}
     base = _plant(plant, args.profile)
-    errors = check_free(base, args.free)
+    if args.fmu:
+        from ..fmi.calibration import check_fmu_free, write_fmu_params
+        from ..ident.calibrate.data import COMMAND_SIGNAL
+        errors = check_fmu_free(args.fmu, base, args.free)
+        read = {'current_topic': COMMAND_SIGNAL}    # the FMU's current is the commanded one
+    else:
+        errors, read = check_free(base, args.free), {}
     if errors:
         raise CalibrationError(errors)
-    recs = read_fleet(pumps, lambda bags: _read(args, base, bags))
+    recs = read_fleet(pumps, lambda bags: _read(args, base, bags, **read))
     header = [f'start: {plant}']
     done = []
 
@@ -389,7 +395,7 @@ def _fleet(args) -> int:
         cal = res.calibration
         if cal is not None:
             suggest(cal)
-            cal.provenance = collect([plant, args.profile, *res.sources])
+            cal.provenance = collect([plant, args.profile, args.fmu, *res.sources])
             folder = outs[res.name].parent
             try:
                 folder.mkdir(parents=True, exist_ok=True)
@@ -399,6 +405,9 @@ def _fleet(args) -> int:
             if not cal.improved:
                 res.reason = f'{_not_improved(cal)}: no params file written'
 
+            elif args.fmu:
+                res.files.append(write_fmu_params(cal, args.fmu, outs[res.name], [
+                    f'FMU: {args.fmu}', f'pump {res.name} of the fleet {args.fleet}']))
             else:
                 own, bench = _plant_only(cal, plant, args.profile)
                 res.files.append(write_params(cal, outs[res.name], [
@@ -414,6 +423,7 @@ def _fleet(args) -> int:
     ex = _executor(args)
     try:
         result = calibrate_fleet(recs, base, args.free, executor=ex, on_result=store,
+                                 fmu=args.fmu,
                                  offsets=args.offset, fit_delays=not args.no_delays,
                                  signals=args.signals, priors=priors,
                                  multistart=not args.no_multistart)

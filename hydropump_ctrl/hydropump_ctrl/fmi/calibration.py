@@ -199,6 +199,17 @@ def free_checker(sim: FmuSimulator):
     return check
 
 
+def check_fmu_free(path, base: Params, free: Sequence[str]) -> list[str]:
+    """One line per free name that is not a real parameter of the FMU at ``path`` (read and
+    loaded once: :class:`FmuError` if it cannot be the plant), as :func:`calibrate_fmu`
+    checks them: what a fleet checks before its tasks start."""
+    sim = FmuSimulator(path, base)
+    try:
+        return free_checker(sim)(base, tuple(free))
+    finally:
+        sim.close()
+
+
 def _check_outputs(sim: FmuSimulator, exps: Sequence[Experiment]) -> None:
     """:class:`CalibrationError` for a compared signal the FMU does not output."""
     outs = set(sim.model.outputs)

@@ -132,6 +132,8 @@ class FleetResult:
     where: str = ''
     wall_time: float = 0.0
     table: dict[str, Path] = field(default_factory=dict)
+    #: The free parameters' units where they are not the suite's (an FMU's).
+    units: dict[str, str] = field(default_factory=dict)
 
     @property
     def failed(self) -> int:
@@ -142,17 +144,46 @@ def _sources(recs) -> list[str]:
     return [str(getattr(r, 'source', '') or getattr(r, 'name', '')) for r in recs]
 
 
+#: The FMUs a process was given by a fleet's tasks: their content's digest -> its file.
+_FMU_FILES: dict[str, Path] = {}
+
+
+def fmu_file(name: str, data: bytes) -> Path:
+    """An FMU a task was given as bytes (``name``, its content), as a file of this process:
+    written once, in a folder of its own removed at the process's exit. A worker on another
+    machine needs no shared disk."""
+    import atexit
+    import hashlib
+    import shutil
+    import tempfile
+    digest = hashlib.sha256(data).hexdigest()
+    path = _FMU_FILES.get(digest)
+    if path is None or not path.is_file():
+        folder = Path(tempfile.mkdtemp(prefix='hydropump-fmu-'))
+        atexit.register(shutil.rmtree, folder, True)
+        path = folder / Path(name).name
+        path.write_bytes(data)
+        _FMU_FILES[digest] = path
+    return path
+
+
 def calibrate_pump(item, job: dict) -> PumpResult:
     """One pump's calibration (what a task runs): ``item`` is ``(name, recordings)``,
-    ``job`` the shared start, free parameters and options. A calibration the data refuse is
-    the result's ``reason``, not an exception."""
+    ``job`` the shared start, free parameters and options, and ``fmu`` (its file's name and
+    bytes) where the model is a user's FMU. A calibration the data refuse is the result's
+    ``reason``, not an exception."""
     from .calibration import calibrate
     name, recs = item
     t0 = time.perf_counter()
     sources = _sources(recs)
     try:
-        cal = calibrate(recs, job['base'], job['free'], workers=job['threads'],
-                        **job['options'])
+        if job.get('fmu'):
+            from ...fmi.calibration import calibrate_fmu
+            cal = calibrate_fmu(fmu_file(*job['fmu']), recs, job['base'], job['free'],
+                                **job['options'])
+        else:
+            cal = calibrate(recs, job['base'], job['free'], workers=job['threads'],
+                            **job['options'])
     except HydropumpError as exc:
         return PumpResult(name, sources, None, '; '.join(exc.lines),
                           time.perf_counter() - t0)
@@ -162,11 +193,13 @@ def calibrate_pump(item, job: dict) -> PumpResult:
 def calibrate_fleet(recordings: Mapping[str, Sequence], base: Params, free: Sequence[str], *,
                     executor: Executor | None = None,
                     on_result: Callable[[PumpResult], None] | None = None,
-                    **options) -> FleetResult:
+                    fmu: str | Path | None = None, **options) -> FleetResult:
     """Calibrate every pump of ``recordings`` (pump -> its recordings) from ``base`` with the
     same free parameters and ``options`` (those of :func:`..calibrate`), each pump one task
     on ``executor``; ``on_result`` gets each pump's result as it arrives (to write its
-    files).
+    files). With ``fmu`` the model of every pump is that FMU (the free names its
+    parameters; :func:`hydropump_ctrl.fmi.calibration.calibrate_fmu`): it goes to the tasks
+    as bytes, as the recordings do.
 
     Without an executor the first pump is calibrated here (its simulations on threads) and
     timed; the others go to a local Dask cluster when it would finish them sooner, its
@@ -177,7 +210,8 @@ def calibrate_fleet(recordings: Mapping[str, Sequence], base: Params, free: Sequ
     t0 = time.perf_counter()
     items = list(recordings.items())
     results: dict[int, PumpResult] = {}
-    shared = {'base': base, 'free': tuple(free), 'options': options}
+    shared = {'base': base, 'free': tuple(free), 'options': options,
+              'fmu': (Path(fmu).name, Path(fmu).read_bytes()) if fmu else None}
 
     def run(ex: Executor, first: int, last: int) -> None:
         # On threads of this process, the threads the fleet leaves idle go to each
@@ -213,8 +247,13 @@ def calibrate_fleet(recordings: Mapping[str, Sequence], base: Params, free: Sequ
     finally:
         if own is not None:
             own.close()
+    units = {}
+    if fmu:
+        from ...fmi.reading import read_fmu
+        variables = read_fmu(fmu).variables
+        units = {n: variables[n].unit for n in free}
     return FleetResult(tuple(free), [results[k] for k in range(len(items))], executor.where,
-                       time.perf_counter() - t0)
+                       time.perf_counter() - t0, units=units)
 
 
 # ---- the table -----------------------------------------------------------------------------
@@ -228,7 +267,8 @@ def table_columns(result: FleetResult) -> tuple[dict[str, list], dict[str, str]]
     cols: dict[str, list] = {'pump': [], 'status': [], 'reason': [], 'bags': []}
     units = {'bags': ''}
     for n in result.free:
-        for suffix, unit in (('', specs[n].unit), ('_stderr', specs[n].unit),
+        si = result.units[n] if n in result.units else specs[n].unit
+        for suffix, unit in (('', si), ('_stderr', si),
                              ('_rel_stderr', '%'), ('_well_determined', '')):
             cols[n + suffix] = []
             units[n + suffix] = unit
