@@ -593,6 +593,30 @@ def run3(path, inputs, n: int, dt: float = 1.0e-3):
     return outs, np.array(rows)
 
 
+def lag_recording(levels, p_atm, seed, n=1200, dwell=0.3, settled_at=None, gain=1.2e-3,
+                  tau=0.025, dt=1.0e-3):
+    """The lag's exact response to a staircase of ``levels`` held ``dwell`` each: the flow
+    q' = (gain (I - 0.3) - q) / tau from rest at the first level (or at ``settled_at`` [A]),
+    sampled every dt, with noise of 2e-6 m^3/s on it and 1e4 Pa on the pressure 2 MPa +
+    8e9 q (absolute)."""
+    import numpy as np
+
+    from hydropump_ctrl.ident.recording import Recording
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * dt
+    cur = np.asarray(levels)[np.minimum((t / dwell).astype(int), len(levels) - 1)]
+    q = np.empty(n)
+    q[0] = gain * ((cur[0] if settled_at is None else settled_at) - 0.3)
+    for k in range(n - 1):
+        target = gain * (cur[k] - 0.3)
+        q[k + 1] = target + (q[k] - target) * np.exp(-dt / tau)
+    return Recording(t, {'solenoid_current_cmd': cur,
+                         'line_flow': q + 2e-6 * rng.standard_normal(n),
+                         'line_pressure': 2e6 + 8e9 * q + 1e4 * rng.standard_normal(n) + p_atm},
+                     name=f'staircase{seed}',
+                     roles={'current': 'solenoid_current_cmd', 'flow': 'line_flow'})
+
+
 if __name__ == '__main__':
     # python -m tests.fmus run3 FMU INPUTS.npz OUT.npz N: run3 in a process of its own.
     import numpy as np

@@ -17,7 +17,7 @@ from hydropump_ctrl.fmi.reading import read_fmu
 from hydropump_sim.simulate import IntegrationError
 
 from .. import fmus
-from .test_fmi_calibration import _exact, GAIN, recordings, TAU  # noqa: F401 (a fixture)
+from .test_fmi_calibration import GAIN, recordings, TAU  # noqa: F401 (a fixture)
 
 pytest.importorskip('fmpy')
 
@@ -195,7 +195,7 @@ def test_a_fleet_of_pumps_calibrates_one_fmu(pump3, params, tmp_path, capsys):
     for k, (name, (gain, tau)) in enumerate(truth.items()):
         (tmp_path / 'fleet' / name).mkdir(parents=True)
         for j, levels in enumerate(([0.4, 0.6, 0.8, 0.5], [0.6, 0.45, 0.65, 0.35])):
-            _exact(levels, params.fluid.p_atm, 10 * k + j, gain=gain, tau=tau).save(
+            fmus.lag_recording(levels, params.fluid.p_atm, 10 * k + j, gain=gain, tau=tau).save(
                 tmp_path / 'fleet' / name / f'run{j}.npz')
     report = tmp_path / 'report'
     assert cli.main(['calibrate', '--fmu', str(pump3), '--fleet', str(tmp_path / 'fleet'),

@@ -25,33 +25,15 @@ def lag_pump(tmp_path_factory):
     return fmus.lag_pump(tmp_path_factory.mktemp('lag'))
 
 
-def _exact(levels, p_atm, seed, n=1200, dwell=0.3, settled_at=None, gain=GAIN, tau=TAU):
-    """The lag's exact response to a staircase of ``levels`` held ``dwell`` each: the flow
-    q' = (gain (I - 0.3) - q) / tau from rest at the first level (or at ``settled_at`` [A]),
-    sampled every DT, with noise of 2e-6 m^3/s on it and 1e4 Pa on the pressure 2 MPa +
-    8e9 q (absolute)."""
-    rng = np.random.default_rng(seed)
-    t = np.arange(n) * DT
-    cur = np.asarray(levels)[np.minimum((t / dwell).astype(int), len(levels) - 1)]
-    q = np.empty(n)
-    q[0] = gain * ((cur[0] if settled_at is None else settled_at) - 0.3)
-    for k in range(n - 1):
-        target = gain * (cur[k] - 0.3)
-        q[k + 1] = target + (q[k] - target) * np.exp(-DT / tau)
-    return Recording(t, {'solenoid_current_cmd': cur,
-                         'line_flow': q + 2e-6 * rng.standard_normal(n),
-                         'line_pressure': 2e6 + 8e9 * q + 1e4 * rng.standard_normal(n) + p_atm},
-                     name=f'staircase{seed}', roles=ROLES)
-
-
 @pytest.fixture(scope='module')
 def recordings(params):
     # The second starts where a recorder's run may: settled at another current (0.7 A)
     # than its first (0.6 A).
     # The first one's pressure starts late (its first messages lost): NaN there.
-    first = _exact([0.4, 0.6, 0.8, 0.5], params.fluid.p_atm, 1)
+    first = fmus.lag_recording([0.4, 0.6, 0.8, 0.5], params.fluid.p_atm, 1, gain=GAIN, tau=TAU)
     first.signals['line_pressure'][:3] = np.nan
-    return [first, _exact([0.6, 0.45, 0.65, 0.35], params.fluid.p_atm, 2, settled_at=0.7)]
+    return [first, fmus.lag_recording([0.6, 0.45, 0.65, 0.35], params.fluid.p_atm, 2,
+                                      settled_at=0.7, gain=GAIN, tau=TAU)]
 
 
 def test_an_fmu_is_calibrated_to_the_closed_form(lag_pump, recordings, params, tmp_path):
