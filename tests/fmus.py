@@ -339,8 +339,8 @@ def c_pump3(where: Path, name: str = 'lag_pump3') -> Path:
 # instant that falls between communication points; and a state event: with ``q_max``
 # [m^3/s] (0: none) the plate meets its end stop where the flow reaches q_max (an event
 # indicator q_max - q crosses zero), and stays there until the target falls below it. It
-# asks for completed integrator steps and declares its state's nominal (1e-4 m^3/s); past
-# ``fail_after`` [s] (0: never) its derivatives fail, saying why.
+# asks for completed integrator steps (FMI 2.0's default) and declares its state's nominal
+# (1e-4 m^3/s); past ``fail_after`` [s] (0: never) its derivatives fail, saying why.
 PUMP_ME_C = textwrap.dedent(r"""
     #include <math.h>
     #include <stdlib.h>
@@ -463,7 +463,7 @@ PUMP_ME_C = textwrap.dedent(r"""
         Pump *p = c;
         double ts = p->v[T_SWITCH];
         double q = p->v[Q];
-        if (!p->switched && ts > 0.0 && p->t >= ts - 1e-12) p->switched = 1;
+        if (!p->switched && ts > 0.0 && p->t >= ts) p->switched = 1;   /* no tolerance */
         stop(p);
         update(p);
         info->newDiscreteStatesNeeded = fmi2False;
@@ -487,7 +487,7 @@ PUMP_ME_DESCRIPTION = textwrap.dedent("""\
     <fmiModelDescription fmiVersion="2.0" modelName="LagPumpME"
         guid="{5d1c7a52-0a7e-4d8e-9a51-2f0e3b6c7e11}" numberOfEventIndicators="1"
         description="A first-order pump in C (FMI 2.0 model exchange)">
-      <ModelExchange modelIdentifier="NAME" needsCompletedIntegratorStep="true"/>
+      <ModelExchange modelIdentifier="NAME"/>
       <UnitDefinitions>
         <Unit name="s"><BaseUnit s="1"/></Unit>
         <Unit name="A"><BaseUnit A="1"/></Unit>

@@ -150,7 +150,6 @@ components:
     client = test_node.create_client(GetParameters, '/simulator/get_parameters')
     answer = call(test_node, client, GetParameters.Request(names=['fmu_loads.load.Cd_A']))
     assert answer.values[0].double_value == pytest.approx(3.0e-6)
-    # A steady start (the first steps hold, to the start's stated agreement), then the
-    # current's step moves the line.
-    from hydropump_ctrl.fmi.loads import START_AGREEMENT
-    assert np.ptp(p[:40]) < START_AGREEMENT * p[0] and np.ptp(p) > 1.0e5
+    # A steady start (the first steps hold, to 1e-4: the start's agreement docs/fmi.md
+    # states), then the current's step moves the line.
+    assert np.ptp(p[:40]) < 1e-4 * p[0] and np.ptp(p) > 1.0e5

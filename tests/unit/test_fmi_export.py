@@ -3,6 +3,7 @@ read and run by FMPy, as another tool would: its model description (units, range
 validation), every output against ``simulate()`` stepped as the nodes step, a parameter set
 through FMI against the same value set in the library, and the one-line refusals."""
 
+import os
 import subprocess
 import sys
 
@@ -111,21 +112,14 @@ def test_the_fmu_in_fmpy_equals_simulate_on_every_output(exported, name, inputs)
 
 
 def _run3(path, inputs, tmp_path, n=N):
-    """:func:`tests.fmus.run3` in a Python process of its own: the output names and values.
-
-    PythonFMU3 0.3.4 leaves the heap of a Python host that ran one of its FMUs corrupted:
-    at the host's exit glibc may find it and abort ("corrupted double-linked list"), the
-    same with a PythonFMU3 FMU of a dozen lines that uses nothing of the suite (docs/fmi.md).
-    The results are judged on what the run wrote before its exit; an exit by that abort is
-    told apart from a failure of the run."""
+    """:func:`tests.fmus.run3` in a Python process of its own (its exit is judged too): the
+    output names and values."""
     given, out = tmp_path / 'inputs.npz', tmp_path / 'outputs.npz'
     np.savez(given, **inputs)
     done = subprocess.run([sys.executable, '-m', 'tests.fmus', 'run3', str(path), str(given),
                            str(out), str(n)], cwd=ROOT, capture_output=True, text=True,
                           timeout=600)
-    assert 'written' in done.stdout, done.stderr
-    assert done.returncode == 0 or (done.returncode == -6 and 'corrupted' in done.stderr), \
-        (done.returncode, done.stderr)
+    assert done.returncode == 0 and 'written' in done.stdout, (done.returncode, done.stderr)
     with np.load(out) as f:
         return [str(x) for x in f['names']], f['values']
 
@@ -153,6 +147,18 @@ def test_an_fmi_3_fmu_passes_validation_and_equals_simulate(tmp_path):
         span = max(np.ptp(want[o]), 1e-9 * max(np.abs(want[o]).max(), 1e-300))
         np.testing.assert_allclose(got[:, j], want[o], rtol=0, atol=1e-6 * span, err_msg=o)
     assert np.ptp(want['line_pressure']) > 1e5
+    # PythonFMU3 0.3.4's library frees its interpreter state twice at a process's exit;
+    # whether glibc notices (and aborts) depends on where the heap lies: without the FMU's
+    # anchor instance (hydropump_fmu3.py) about one Python host in three aborted after
+    # fmpy.simulate_fmu on this machine, none with it. Each host here must end cleanly (a
+    # check of the exit, not a proof: the heap's layout moves with paths and hash seeds).
+    for seed in ('4', '5'):
+        ran = subprocess.run(
+            [sys.executable, '-c', 'import sys, fmpy; fmpy.simulate_fmu(sys.argv[1], '
+             'stop_time=0.05, step_size=1e-3, output_interval=1e-3)', str(done.path)],
+            cwd=ROOT, capture_output=True, text=True, timeout=600,
+            env=dict(os.environ, PYTHONHASHSEED=seed))
+        assert ran.returncode == 0, (seed, ran.returncode, ran.stderr[-2000:])
 
 
 def test_a_parameter_set_through_fmi_is_the_same_value_set_in_the_library(exported):

@@ -134,7 +134,7 @@ def test_bad_fmu_loads_are_one_line_each(folder):
 def test_an_fmu_loads_own_parameters_come_from_the_circuit_file(folder):
     """``parameters: {Cd_A: ...}`` in the circuit file (or ``--set load.parameters.Cd_A=``)
     is set in the FMU before each initialisation: its flow is the closed form with that
-    area, not the one it was built with; a name it lacks or a value that is no number is one
+    area, not the one it was built with; a name it lacks or a value that is no finite number is one
     line."""
     (folder / 'half.yaml').write_text(circuit_text(
         '{type: fmu, ports: {in: line}, file: orifice_4e6.fmu, parameters: {Cd_A: 2.0e-6}}'))
@@ -151,7 +151,9 @@ def test_an_fmu_loads_own_parameters_come_from_the_circuit_file(folder):
     for given, line in [
             ('{Cd_a: 2.0e-6}', f'load.parameters.Cd_a: {folder / "orifice_4e6.fmu"} has no '
                                'real parameter of that name (did you mean Cd_A?)'),
-            ('{Cd_A: big}', "load.parameters.Cd_A = 'big': not a number")]:
+            ('{Cd_A: big}', "load.parameters.Cd_A = 'big': not a finite number"),
+            ('{Cd_A: .inf}', 'load.parameters.Cd_A = inf: not a finite number'),
+            ('{Cd_A: 3e-6}', 'write a dot and a signed exponent, e.g. 1.5e+9)')]:
         (folder / 'bad.yaml').write_text(circuit_text(
             f'{{type: fmu, ports: {{in: line}}, file: orifice_4e6.fmu, parameters: {given}}}'))
         with pytest.raises(Exception) as err:

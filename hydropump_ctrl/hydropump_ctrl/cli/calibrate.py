@@ -281,7 +281,8 @@ def _single(args) -> int:
     report = run_dir(args.report, 'calibrate')
     refuse_foreign_report(report)
     out = output_file(Path(args.out) if args.out else report / 'calibrated.yaml',
-                      PARAMS_SUFFIXES, 'params file', kind='plant params')
+                      PARAMS_SUFFIXES, 'params file',
+                      kind='FMU params' if args.fmu else 'plant params')
     show = _progress_printer(args.progress)
     if args.fmu:
         return _single_fmu(args, priors, plant, report, out, show)
@@ -370,12 +371,10 @@ def _fleet(args) -> int:
     inputs = [plant, args.fleet] + [f for f in (args.profile, args.fmu) if f]
     if args.report:
         protect_output(args.report, inputs, 'report folder')
-    report = run_dir(args.report, 'calibrate-fleet')
-    # Checked now, each pump's folder made when its result arrives.
-    outs = {name: output_file(report / name / 'calibrated.yaml', PARAMS_SUFFIXES,
-                              f'params file of {name}', create=False, kind='plant params')
-            for name in pumps}
     base = _plant(plant, args.profile)
+    # The free names checked (against the FMU: it is read and loaded once) before the
+    # report folder is made; each pump's params file before the tasks, its folder made when
+    # its result arrives.
     if args.fmu:
         from ..fmi.calibration import check_fmu_free, write_fmu_params
         from ..ident.calibrate.data import COMMAND_SIGNAL
@@ -385,6 +384,11 @@ def _fleet(args) -> int:
         errors, read = check_free(base, args.free), {}
     if errors:
         raise CalibrationError(errors)
+    report = run_dir(args.report, 'calibrate-fleet')
+    outs = {name: output_file(report / name / 'calibrated.yaml', PARAMS_SUFFIXES,
+                              f'params file of {name}', create=False,
+                              kind='FMU params' if args.fmu else 'plant params')
+            for name in pumps}
     recs = read_fleet(pumps, lambda bags: _read(args, base, bags, **read))
     header = [f'start: {plant}']
     done = []
@@ -394,7 +398,8 @@ def _fleet(args) -> int:
         # the start) and its report.
         cal = res.calibration
         if cal is not None:
-            suggest(cal)
+            if not args.fmu:        # the next experiments are designed for the suite's model
+                suggest(cal)
             cal.provenance = collect([plant, args.profile, args.fmu, *res.sources])
             folder = outs[res.name].parent
             try:

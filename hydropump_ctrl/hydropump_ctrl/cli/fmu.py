@@ -45,9 +45,6 @@ def cmd_fmu(args) -> int:
           'validation: no problem')
     print(f'  inputs: {", ".join(done.inputs)}')
     print(f'  outputs: {", ".join(done.outputs)}')
-    if args.fmi == '3':
-        print('  note: a Python host that ran a PythonFMU3 FMU can abort at its exit, its '
-              'results written (a fault of PythonFMU3; docs/fmi.md)')
     return 0
 
 
@@ -68,6 +65,6 @@ def _check(path: str) -> int:
             rng = f' in [{v.min:g}, {v.max:g}]' if v.min is not None and v.max is not None \
                 else ''
             start = f', start {v.start:g}' if v.start is not None else ''
-            kind = '' if v.real else f' ({v.type})'
+            kind = '' if v.real else f' ({v.type}{" array" if v.array else ""})'
             print(f'    {name}{kind}{unit}{rng}{start}')
     return 0

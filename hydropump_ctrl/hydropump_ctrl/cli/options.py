@@ -272,6 +272,8 @@ def file_kind(path: Path) -> str | None:
             groups |= set(body['ros__parameters'])
     if 'controller' in groups:
         return 'controller params'
+    if 'fmu_file' in groups:
+        return 'FMU params'
     if groups & PLANT_GROUPS:
         return 'plant params'
     if 'components' in data:

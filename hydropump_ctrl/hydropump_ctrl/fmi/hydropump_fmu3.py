@@ -25,6 +25,45 @@ from pythonfmu3 import (
 #: The manifest beside the circuit in the FMU's resources.
 MANIFEST = 'hydropump_fmu.yaml'
 
+# PythonFMU3 0.3.4's library frees its interpreter state twice when its process ends: the
+# static shared_ptr that holds it is destroyed first, then the library's destructor assigns
+# to it again, releasing a freed block (valgrind: an invalid read in
+# finalizePythonInterpreter), and glibc may abort the process at its exit. An instance that
+# is never freed holds a second reference: the static's destruction then only drops one,
+# and the destructor's assignment frees the state once. One such anchor per process: the
+# library handle, its logger callback and the instance, kept for the life of the process.
+_ANCHOR: list = []
+_ANCHORING = [False]
+
+
+def _anchor(resources: str) -> None:
+    """The anchor instance made through this FMU's own library (see above); nothing where
+    the library is not found or the instantiation fails."""
+    import ctypes
+    import sys
+    if _ANCHOR or _ANCHORING[0] or not sys.platform.startswith('linux'):
+        return
+    libs = sorted((Path(resources).parent / 'binaries' / 'x86_64-linux').glob('*.so'))
+    if len(libs) != 1:
+        return
+    lib = ctypes.CDLL(str(libs[0]))             # the library already loaded, not a new one
+    instantiate = lib.fmi3InstantiateCoSimulation
+    log = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_int, ctypes.c_char_p,
+                           ctypes.c_char_p)
+    instantiate.restype = ctypes.c_void_p
+    instantiate.argtypes = [ctypes.c_char_p, ctypes.c_char_p, ctypes.c_char_p] + \
+        [ctypes.c_bool] * 4 + [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_void_p, log,
+                               ctypes.c_void_p]
+    quiet = log(lambda *args: None)
+    _ANCHORING[0] = True
+    try:
+        made = instantiate(b'anchor', b'', str(resources).encode(), False, False, False, False,
+                           None, 0, None, quiet, None)
+    finally:
+        _ANCHORING[0] = False
+    if made:
+        _ANCHOR.extend([lib, quiet, made])
+
 
 class Hydropump(Fmi3Slave):
     """A circuit of the suite as an FMI 3.0 co-simulation slave (see the module)."""
@@ -34,6 +73,9 @@ class Hydropump(Fmi3Slave):
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
+        if _ANCHORING[0]:       # the anchor: an instance that is never used
+            return
+        _anchor(self.resources)
         import yaml
 
         from hydropump_sim.block import CircuitBlock

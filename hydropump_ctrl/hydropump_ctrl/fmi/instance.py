@@ -17,8 +17,10 @@ here imports ROS.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+import math
 import os
 import shutil
+import threading
 
 from hydropump_sim.errors import HydropumpError
 from hydropump_sim.simulate import IntegrationError
@@ -28,6 +30,9 @@ from .reading import FmuInfo
 
 #: CVode's relative tolerance for a model-exchange FMU.
 RTOL = 1.0e-6
+#: FMPy loads a library from its folder, changing the process's working folder meanwhile:
+#: one load at a time (a fleet loads its pumps' FMUs on threads at once).
+_LOADING = threading.Lock()
 
 
 class FmuInstance:
@@ -39,6 +44,7 @@ class FmuInstance:
         import fmpy
         self.info = info
         self.messages: list[str] = []
+        self._logged_n = 0             # messages logged in all (self.messages keeps the last)
         self.time = 0.0                # the FMU's own clock, from its last initialisation
         self._fmu, self._instantiated, self._started = None, False, False
         self._solver = None            # a model-exchange FMU's integrator, once initialised
@@ -50,11 +56,12 @@ class FmuInstance:
         try:
             # FMPy loads the library from its folder and does not come back when loading
             # fails: the process's folder is put back here whatever happens.
-            cwd = os.getcwd()
-            try:
-                self._fmu = (self._load3 if self.fmi == 'fmi3' else self._load2)(name)
-            finally:
-                os.chdir(cwd)
+            with _LOADING:
+                cwd = os.getcwd()
+                try:
+                    self._fmu = (self._load3 if self.fmi == 'fmi3' else self._load2)(name)
+                finally:
+                    os.chdir(cwd)
             self._instantiated = True
         except HydropumpError:
             self.close()
@@ -108,6 +115,14 @@ class FmuInstance:
     def _logged(self, env, instance, status, category, message):
         text = message.decode(errors='replace') if isinstance(message, bytes) else str(message)
         self.messages = (self.messages + [text])[-20:]
+        self._logged_n += 1
+
+    def said_since(self, n: int, otherwise: str) -> str:
+        """The FMU's messages logged after it had logged ``n`` (what it said during a
+        call), else ``otherwise``."""
+        new = self.messages[-min(self._logged_n - n, len(self.messages)):] \
+            if self._logged_n > n else []
+        return '; '.join(m for m in new if m) or otherwise
 
     def _live(self):
         if self._fmu is None:
@@ -116,11 +131,13 @@ class FmuInstance:
 
     def call(self, what: str, fn, *args, at: float | None = None, **kwargs):
         """``fn(*args, **kwargs)`` of the FMU; :class:`IntegrationError` with the FMU's own
-        messages (and the simulation time ``at``, default its own) if it fails."""
+        messages during the call, else the error's (and the simulation time ``at``, default
+        its own) if it fails."""
+        n = self._logged_n
         try:
             return fn(*args, **kwargs)
         except Exception as exc:
-            said = '; '.join(m for m in self.messages if m) or str(exc)
+            said = self.said_since(n, str(exc))
             t = self.time if at is None else at
             raise IntegrationError(f'the FMU failed in {what} at t = {t:.6g} s of '
                                    f'simulation time: {said}') from None
@@ -149,8 +166,10 @@ class FmuInstance:
         self._started = True
         self.time = 0.0
         if self.info.model_exchange:
-            self._solver = None
-            self._solver = _Integrator(self, at)
+            if self._solver is None:        # one integrator for the instance's life
+                self._solver = _Integrator(self, at)
+            else:
+                self._solver.restart(at)
 
     def set(self, refs: Sequence[int], values: Sequence[float], at: float | None = None
             ) -> None:
@@ -173,14 +192,16 @@ class FmuInstance:
         """``fmi2DoStep`` (``fmi3DoStep``) over ``dt`` from the FMU's own clock; a
         model-exchange FMU integrated over it."""
         if self.info.model_exchange:
-            self._solver.advance(self.time + dt, at)
-            self.time += dt
+            if self._solver is None or not self._started:
+                raise IntegrationError('the FMU is not initialised')
+            self.time = self._solver.advance(self.time + dt, at)
             return
+        n = self._logged_n
         done = self.call(f'{self.fmi}DoStep', self._live().doStep,
                          currentCommunicationPoint=self.time, communicationStepSize=dt, at=at)
         if self.fmi == 'fmi3' and done[1]:     # terminateSimulation: the FMU asks to end
             t = self.time if at is None else at
-            said = '; '.join(m for m in self.messages if m) or 'no message'
+            said = self.said_since(n, 'no message')
             raise IntegrationError(f'the FMU ended the simulation in fmi3DoStep at '
                                    f't = {t:.6g} s of simulation time: {said}')
         self.time += dt
@@ -206,16 +227,23 @@ class FmuInstance:
 
 class _Integrator:
     """CVode over a model-exchange FMU's continuous states, from its initialisation on (see
-    the module): :meth:`advance` to a communication point, events handled on the way."""
+    the module): :meth:`advance` to a communication point, events handled on the way; one
+    for the instance's life (:meth:`restart` after each initialisation)."""
 
     def __init__(self, inst: FmuInstance, at: float | None):
+        from ctypes import c_double, c_int, c_void_p
+
         from fmpy.sundials import CVodeSolver
+        from fmpy.sundials.cvode import sundials_cvode
+        from fmpy.sundials.sundials_context import (
+            SUNContext,
+            SUNContext_PushErrHandler,
+            sundials_core,
+        )
         self.inst, f, md = inst, inst._fmu, inst.info.description
         self.v3 = inst.fmi == 'fmi3'
         self.needs_completed = bool(md.modelExchange.needsCompletedIntegratorStep)
-        self.next_event = self._discrete(at)
-        inst.call(f'{inst.fmi}EnterContinuousTimeMode', f.enterContinuousTimeMode, at=at)
-        self.inputs = self._inputs()
+        self._enter(at)
 
         class Held:               # the inputs are held over a step: nothing to apply
             def apply(self, *args, **kwargs):
@@ -236,29 +264,35 @@ class _Integrator:
                 except Exception:
                     return -1
 
-        from ctypes import c_double, c_int, c_void_p
-
-        from fmpy.sundials.cvode import sundials_cvode
         self.stop_at = sundials_cvode.CVodeSetStopTime
         self.stop_at.argtypes, self.stop_at.restype = [c_void_p, c_double], c_int
-        self.solver = inst.call('CVodeInit', Solver, at=at,
-            nx=md.numberOfContinuousStates, nz=md.numberOfEventIndicators,
-            get_x=f.getContinuousStates, set_x=f.setContinuousStates,
+        self.solver = inst.call(
+            'CVodeInit', Solver, at=at, nx=md.numberOfContinuousStates,
+            nz=md.numberOfEventIndicators, get_x=f.getContinuousStates,
+            set_x=f.setContinuousStates,
             get_dx=f.getContinuousStateDerivatives if self.v3 else f.getDerivatives,
             get_z=f.getEventIndicators, get_nominals=f.getNominalsOfContinuousStates,
             set_time=f.setTime, input=Held(), startTime=0.0, relativeTolerance=RTOL,
             maxNumSteps=100_000)
         # SUNDIALS prints its errors to stderr besides FMPy's handler: only FMPy's (which
         # puts them in the error raised) is kept.
-        from fmpy.sundials.sundials_context import (
-            SUNContext,
-            SUNContext_PushErrHandler,
-            sundials_core,
-        )
         clear = sundials_core.SUNContext_ClearErrHandlers
         clear.argtypes, clear.restype = [SUNContext], c_int
         clear(self.solver.sunctx)
         SUNContext_PushErrHandler(self.solver.sunctx, self.solver.ehfun_, None)
+
+    def _enter(self, at) -> None:
+        """From the FMU's event mode after its initialisation into continuous time."""
+        inst, f = self.inst, self.inst._fmu
+        self.next_event = self._discrete(at)
+        inst.call(f'{inst.fmi}EnterContinuousTimeMode', f.enterContinuousTimeMode, at=at)
+        self.inputs = self._inputs()
+
+    def restart(self, at: float | None) -> None:
+        """After another initialisation of the FMU: CVode from its new states at 0 (its
+        memory kept: SUNDIALS' vectors and matrices are not freed by FMPy)."""
+        self._enter(at)
+        self.solver.reset(0.0)
 
     def _inputs(self) -> list[float]:
         inst = self.inst
@@ -272,38 +306,50 @@ class _Integrator:
         update = f.updateDiscreteStates if self.v3 else f.newDiscreteStates
         name = f'{inst.fmi}UpdateDiscreteStates' if self.v3 else 'fmi2NewDiscreteStates'
         for _ in range(1000):
+            n = inst._logged_n
             needed, terminate, _, _, defined, when = inst.call(name, update, at=at)
             if terminate:
                 t = inst.time if at is None else at
                 raise IntegrationError(f'the FMU ended the simulation at t = {t:.6g} s of '
-                                       'simulation time: ' + ('; '.join(
-                                           m for m in inst.messages if m) or 'no message'))
+                                       f'simulation time: {inst.said_since(n, "no message")}')
             if not needed:
                 return when if defined else None
         raise IntegrationError('the FMU did not settle its discrete states in 1000 '
                                'iterations of an event')
 
     def _event(self, t: float, at) -> None:
+        """An event at ``t``: the FMU's time set there, its discrete states updated, CVode
+        restarted from there."""
         inst, f = self.inst, self.inst._fmu
+        inst.call(f'{inst.fmi}SetTime', f.setTime, t, at=at)
         inst.call(f'{inst.fmi}EnterEventMode', f.enterEventMode, at=at)
         self.next_event = self._discrete(at)
         inst.call(f'{inst.fmi}EnterContinuousTimeMode', f.enterContinuousTimeMode, at=at)
         self.solver.reset(t)
 
-    def advance(self, t_end: float, at: float | None) -> None:
+    def advance(self, t_end: float, at: float | None) -> float:
         """Integrated from the FMU's clock to ``t_end``; a change of its inputs since the
-        last communication point is an event at the start."""
-        import math
+        last communication point is an event at the start. Returns the time reached (a
+        time event due at ``t_end`` or a hair before is taken at its own instant)."""
         inst, f = self.inst, self.inst._fmu
         t = inst.time
         inputs = self._inputs()
         if inputs != self.inputs:
             self.inputs = inputs
             self._event(t, at)
-        close = lambda a, b: math.isclose(a, b, rel_tol=1e-12, abs_tol=1e-12)  # noqa: E731
+
+        def close(a: float, b: float) -> bool:      # too close for CVode to step between
+            return math.isclose(a, b, rel_tol=1e-12, abs_tol=1e-12)
         for _ in range(1_000_000):
+            # A time event due now (the clock's sums drift by ulps from where the FMU puts
+            # its events): taken at its own instant, so that the FMU sees its time reached.
+            if self.next_event is not None and (self.next_event <= t
+                                                or close(t, self.next_event)):
+                t = max(t, self.next_event)
+                self._event(t, at)
+                continue
             if close(t, t_end) or t > t_end:
-                return
+                return t_end if close(t, t_end) else t
             target = t_end
             if self.next_event is not None and t < self.next_event < t_end:
                 target = self.next_event
@@ -320,7 +366,6 @@ class _Integrator:
                 if terminate:
                     raise IntegrationError('the FMU ended the simulation at its completed '
                                            f'integrator step, t = {t:.6g} s')
-            time_event = self.next_event is not None and close(t, self.next_event)
-            if state_event or step_event or time_event:
+            if state_event or step_event:
                 self._event(t, at)
         raise IntegrationError(f"the FMU's events did not let time advance past t = {t:.6g} s")

@@ -41,12 +41,13 @@ class Variable:
     start: float | None = None
     min: float | None = None
     max: float | None = None
+    array: bool = False             # an FMI 3.0 array variable
 
     @property
     def real(self) -> bool:
-        """Whether the suite sets and reads it: a 64-bit real (FMI 2.0 ``Real``, FMI 3.0
-        ``Float64``)."""
-        return self.type in REAL_TYPES
+        """Whether the suite sets and reads it: a scalar 64-bit real (FMI 2.0 ``Real``,
+        FMI 3.0 ``Float64`` without dimensions)."""
+        return self.type in REAL_TYPES and not self.array
 
 
 @dataclass(frozen=True)
@@ -138,7 +139,8 @@ def read_fmu(path: str | Path, *, inputs: Iterable[str] = (), outputs: Iterable[
         problems.append(f'no binary for this platform ({fmpy.platform}): built for '
                         f'{", ".join(platforms) or "no platform"}')
     variables = {v.name: Variable(v.name, v.causality or 'local', v.type, v.unit or '',
-                                  _number(v.start), _number(v.min), _number(v.max))
+                                  _number(v.start), _number(v.min), _number(v.max),
+                                  bool(getattr(v, 'dimensions', None)))
                  for v in md.modelVariables}
     for causality, names in (('input', inputs), ('output', outputs)):
         have = [n for n, v in variables.items() if v.causality == causality]

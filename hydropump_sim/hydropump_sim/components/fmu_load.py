@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import math
 
 from ..jitcache import jit
-from ..schema import ParamError, spec
+from ..schema import ParamError, spec, text_number_hint
 from .base import Component, InputSpec, PortSpec, SignalSpec
 
 #: The circuit file's key of an FMU component's own parameters (``parameters: {Cd_A:
@@ -41,11 +41,16 @@ class FmuComponent(Component):
         if not isinstance(items, list):
             raise ParamError([f"{PARAMETERS}: expected a mapping of the FMU's parameter "
                               'names to numbers'], source)
-        pairs = _pairs(items) + [
-            (n, float(v) if isinstance(v, (int, float)) and not isinstance(v, bool)
-             and math.isfinite(v) else v) for n, v in given.items()]
-        errors = [f'{PARAMETERS}.{n} = {v!r}: not a number' for n, v in pairs
-                  if not isinstance(v, float)]
+        number = (lambda v: isinstance(v, (int, float)) and not isinstance(v, bool)  # noqa: E731
+                  and math.isfinite(v))
+        pairs = [p for p, item in zip(_pairs(items), items) if '=' in str(item)] + \
+            [(n, float(v) if number(v) else v) for n, v in given.items()]
+        errors = [f'{PARAMETERS}: {item!r}: expected NAME=VALUE' for item in items
+                  if '=' not in str(item)]
+        errors += [f'{PARAMETERS}.{n} = {v!r}: not a finite number{text_number_hint(v)}'
+                   for n, v in pairs if not number(v)]
+        errors += [f'{PARAMETERS}.{n}: a name with "=" or none is no FMU parameter'
+                   for n, _ in pairs if '=' in n or not n.strip()]
         if errors:
             raise ParamError(errors, source)
         own[PARAMETERS] = [f'{n}={v!r}' for n, v in pairs]
