@@ -533,6 +533,144 @@ def c_pump_me(where: Path, name: str = 'lag_pump_me') -> Path:
     return c_fmu(where, name, PUMP_ME_C, PUMP_ME_DESCRIPTION, 2)
 
 
+# A load as a user might bring it as model exchange, in C: an orifice whose flow lags its
+# law, q' = (Cd_A sqrt(2 max(p, 0) / 850) - q) / tau, p its input (the node's pressure,
+# gauge), q its output; it starts settled at its law.
+LAG_ORIFICE_ME_C = textwrap.dedent(r"""
+    #include <math.h>
+    #include <stdlib.h>
+    #include "fmi2TypesPlatform.h"
+    #include "fmi2FunctionTypes.h"
+
+    enum { PRESSURE, FLOW, Q, DQ, CD_A, TAU, N };
+    typedef struct { double v[N]; } Orifice;
+
+    static void start(Orifice *o) {
+        o->v[PRESSURE] = 1.0e7; o->v[CD_A] = 2.0e-6; o->v[TAU] = 0.01; o->v[Q] = 0.0;
+    }
+    static double law(Orifice *o) {
+        double p = o->v[PRESSURE] > 0.0 ? o->v[PRESSURE] : 0.0;
+        return o->v[CD_A] * sqrt(2.0 * p / 850.0);
+    }
+    static void update(Orifice *o) {
+        o->v[DQ] = (law(o) - o->v[Q]) / o->v[TAU];
+        o->v[FLOW] = o->v[Q];
+    }
+
+    const char *fmi2GetTypesPlatform(void) { return "default"; }
+    const char *fmi2GetVersion(void) { return "2.0"; }
+    fmi2Component fmi2Instantiate(fmi2String name, fmi2Type type, fmi2String guid,
+            fmi2String resources, const fmi2CallbackFunctions *functions,
+            fmi2Boolean visible, fmi2Boolean loggingOn) {
+        if (type != fmi2ModelExchange) return NULL;
+        Orifice *o = calloc(1, sizeof(Orifice));
+        if (o) start(o);
+        return o;
+    }
+    void fmi2FreeInstance(fmi2Component c) { free(c); }
+    fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean on, size_t n,
+                                   const fmi2String categories[]) { return fmi2OK; }
+    fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean tolDefined, fmi2Real tol,
+            fmi2Real tStart, fmi2Boolean stopDefined, fmi2Real tStop) { return fmi2OK; }
+    fmi2Status fmi2EnterInitializationMode(fmi2Component c) { return fmi2OK; }
+    fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
+        Orifice *o = c;
+        o->v[Q] = law(o);
+        update(o);
+        return fmi2OK;
+    }
+    fmi2Status fmi2Terminate(fmi2Component c) { return fmi2OK; }
+    fmi2Status fmi2Reset(fmi2Component c) { start(c); return fmi2OK; }
+    fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                           const fmi2Real value[]) {
+        Orifice *o = c;
+        for (size_t i = 0; i < nvr; i++) {
+            if (vr[i] != PRESSURE && vr[i] != CD_A && vr[i] != TAU) return fmi2Error;
+            o->v[vr[i]] = value[i];
+        }
+        update(o);
+        return fmi2OK;
+    }
+    fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                           fmi2Real value[]) {
+        Orifice *o = c;
+        update(o);
+        for (size_t i = 0; i < nvr; i++) {
+            if (vr[i] >= N) return fmi2Error;
+            value[i] = o->v[vr[i]];
+        }
+        return fmi2OK;
+    }
+    fmi2Status fmi2SetTime(fmi2Component c, fmi2Real t) { return fmi2OK; }
+    fmi2Status fmi2SetContinuousStates(fmi2Component c, const fmi2Real x[], size_t nx) {
+        ((Orifice *)c)->v[Q] = x[0];
+        update(c);
+        return fmi2OK;
+    }
+    fmi2Status fmi2GetContinuousStates(fmi2Component c, fmi2Real x[], size_t nx) {
+        x[0] = ((Orifice *)c)->v[Q];
+        return fmi2OK;
+    }
+    fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real x[], size_t nx) {
+        x[0] = 1.0e-4;
+        return fmi2OK;
+    }
+    fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real dx[], size_t nx) {
+        update(c);
+        dx[0] = ((Orifice *)c)->v[DQ];
+        return fmi2OK;
+    }
+    fmi2Status fmi2GetEventIndicators(fmi2Component c, fmi2Real z[], size_t nz) {
+        return fmi2OK;
+    }
+    fmi2Status fmi2EnterEventMode(fmi2Component c) { return fmi2OK; }
+    fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *info) {
+        info->newDiscreteStatesNeeded = fmi2False;
+        info->terminateSimulation = fmi2False;
+        info->nominalsOfContinuousStatesChanged = fmi2False;
+        info->valuesOfContinuousStatesChanged = fmi2False;
+        info->nextEventTimeDefined = fmi2False;
+        info->nextEventTime = 0.0;
+        return fmi2OK;
+    }
+    fmi2Status fmi2EnterContinuousTimeMode(fmi2Component c) { return fmi2OK; }
+    fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean noSetPrior,
+            fmi2Boolean *enterEventMode, fmi2Boolean *terminate) {
+        *enterEventMode = fmi2False; *terminate = fmi2False;
+        return fmi2OK;
+    }
+    """)
+
+LAG_ORIFICE_ME_DESCRIPTION = textwrap.dedent("""\
+    <?xml version="1.0" encoding="UTF-8"?>
+    <fmiModelDescription fmiVersion="2.0" modelName="LagOrifice"
+        guid="{0b8f6c3e-6a1d-4f0e-8a55-6f2d1c9e7a21}" numberOfEventIndicators="0">
+      <ModelExchange modelIdentifier="NAME"/>
+      <ModelVariables>
+        <ScalarVariable name="pressure" valueReference="0" causality="input"
+            variability="continuous"><Real start="1e7"/></ScalarVariable>
+        <ScalarVariable name="flow" valueReference="1" causality="output"
+            variability="continuous"><Real/></ScalarVariable>
+        <ScalarVariable name="q" valueReference="2" causality="local"
+            variability="continuous" initial="calculated"><Real/></ScalarVariable>
+        <ScalarVariable name="der(q)" valueReference="3" causality="local"
+            variability="continuous" initial="calculated"><Real derivative="3"/>
+        </ScalarVariable>
+        <ScalarVariable name="Cd_A" valueReference="4" causality="parameter"
+            variability="fixed" initial="exact"><Real start="2e-6"/></ScalarVariable>
+        <ScalarVariable name="tau" valueReference="5" causality="parameter"
+            variability="fixed" initial="exact"><Real start="0.01"/></ScalarVariable>
+      </ModelVariables>
+      <ModelStructure>
+        <Outputs><Unknown index="2"/></Outputs>
+        <Derivatives><Unknown index="4"/></Derivatives>
+        <InitialUnknowns><Unknown index="2"/><Unknown index="3"/><Unknown index="4"/>
+        </InitialUnknowns>
+      </ModelStructure>
+    </fmiModelDescription>
+    """)
+
+
 def lag_closed_form(currents, dt: float = 1.0e-3, tau: float = 0.02, gain: float = 1.0e-3,
                     t_switch: float = 0.0, q_max: float = 0.0):
     """The C pumps' flow from their equation alone: q_0 at the first current's target,

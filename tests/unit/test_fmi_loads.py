@@ -161,6 +161,29 @@ def test_an_fmu_loads_own_parameters_come_from_the_circuit_file(folder):
         assert any(ln.endswith(line) for ln in err.value.lines), err.value.lines
 
 
+def test_a_model_exchange_fmu_load_follows_its_own_law_at_every_step(folder):
+    """A load written in C as FMI 2.0 model exchange (an orifice whose flow lags its law,
+    tau 10 ms), integrated by the suite beside the circuit: every step its flow is the exact
+    lag toward its law at the pressure the step started from (held over the step), to
+    CVode's tolerance, and every invariant holds over the run."""
+    fmus.c_fmu(folder, 'lag_orifice', fmus.LAG_ORIFICE_ME_C, fmus.LAG_ORIFICE_ME_DESCRIPTION, 2)
+    (folder / 'me.yaml').write_text(circuit_text(
+        '{type: fmu, ports: {in: line}, file: lag_orifice.fmu}'))
+    coupled = CoupledSimulator(load_circuit(folder / 'me.yaml'), 1.0e-3)
+    try:
+        assert coupled.loads.instances[0][1].info.model_exchange
+        p, q, _ = _run(coupled, n=600, current=0.62).T
+    finally:
+        coupled.close()
+    law = 2.0e-6 * np.sqrt(2.0 * np.maximum(p[:-1], 0.0) / RHO)
+    exact = law + (q[:-1] - law) * math.exp(-1.0e-3 / 0.01)
+    # Within CVode's tolerance (relative 1e-6), where the law itself (no lag) is far off.
+    tol = 1e-6 * q.max()
+    np.testing.assert_allclose(q[1:], exact, rtol=0, atol=tol)
+    assert np.max(np.abs(q[1:] - law)) > 100 * tol
+    assert q[0] == pytest.approx(2.0e-6 * math.sqrt(2.0 * p[0] / RHO), rel=1e-9)
+
+
 # A line volume a user might bring: its pressure from the net flow into it, p' = beta/V q (q
 # held over the step: exact), from its start p0 (not the suite's code: PythonFMU's only).
 VOLUME = """
