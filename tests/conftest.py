@@ -22,6 +22,20 @@ def params():
     from hydropump_sim import load_params
     return load_params(PUMP_YAML)
 
+
+# The C pumps of tests/fmus.py (FMI 3.0 co-simulation, FMI 2.0 model exchange), built once
+# per test process for the unit and the node tests.
+@pytest.fixture(scope='session')
+def pump3(tmp_path_factory):
+    from . import fmus
+    return fmus.c_pump3(tmp_path_factory.mktemp('pump3'))
+
+
+@pytest.fixture(scope='session')
+def pump_me(tmp_path_factory):
+    from . import fmus
+    return fmus.c_pump_me(tmp_path_factory.mktemp('pump_me'))
+
 # Property tests: CI runs a fixed (derandomised) set; HYPOTHESIS_PROFILE=explore searches more.
 try:
     from hypothesis import settings as _hs

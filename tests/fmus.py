@@ -334,6 +334,34 @@ def c_pump3(where: Path, name: str = 'lag_pump3') -> Path:
     return c_fmu(where, name, PUMP3_C, PUMP3_DESCRIPTION, 3)
 
 
+# What the FMI 2.0 model-exchange FMUs in C below share: the headers, and the calls that
+# only accept (their state's nominal is 1e-4 m^3/s, a flow's scale).
+ME_SCAFFOLD = textwrap.dedent(r"""
+    #include <math.h>
+    #include <stdlib.h>
+    #include "fmi2TypesPlatform.h"
+    #include "fmi2FunctionTypes.h"
+    const char *fmi2GetTypesPlatform(void) { return "default"; }
+    const char *fmi2GetVersion(void) { return "2.0"; }
+    void fmi2FreeInstance(fmi2Component c) { free(c); }
+    fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean on, size_t n,
+                                   const fmi2String categories[]) { return fmi2OK; }
+    fmi2Status fmi2EnterInitializationMode(fmi2Component c) { return fmi2OK; }
+    fmi2Status fmi2Terminate(fmi2Component c) { return fmi2OK; }
+    fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real x[], size_t nx) {
+        x[0] = 1.0e-4;
+        return fmi2OK;
+    }
+    fmi2Status fmi2EnterEventMode(fmi2Component c) { return fmi2OK; }
+    fmi2Status fmi2EnterContinuousTimeMode(fmi2Component c) { return fmi2OK; }
+    fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean noSetPrior,
+            fmi2Boolean *enterEventMode, fmi2Boolean *terminate) {
+        *enterEventMode = fmi2False; *terminate = fmi2False;
+        return fmi2OK;
+    }
+    """)
+
+
 # The same pump again as an FMI 2.0 model-exchange FMU in C (the equations only: the host
 # integrates them), with a time event: at ``t_switch`` [s] (0: never) its gain doubles, an
 # instant that falls between communication points; and a state event: with ``q_max``
@@ -341,11 +369,7 @@ def c_pump3(where: Path, name: str = 'lag_pump3') -> Path:
 # indicator q_max - q crosses zero), and stays there until the target falls below it. It
 # asks for completed integrator steps (FMI 2.0's default) and declares its state's nominal
 # (1e-4 m^3/s); past ``fail_after`` [s] (0: never) its derivatives fail, saying why.
-PUMP_ME_C = textwrap.dedent(r"""
-    #include <math.h>
-    #include <stdlib.h>
-    #include "fmi2TypesPlatform.h"
-    #include "fmi2FunctionTypes.h"
+PUMP_ME_C = ME_SCAFFOLD + textwrap.dedent(r"""
 
     enum { CURRENT, FLOW, PRESSURE, Q, DQ, TAU, GAIN, T_SWITCH, FAIL_AFTER, Q_MAX, N };
     typedef struct { double v[N]; double t; int switched, at_stop; fmi2CallbackFunctions cb;
@@ -374,8 +398,6 @@ PUMP_ME_C = textwrap.dedent(r"""
         p->v[PRESSURE] = 2.0e6 + 8.0e9 * p->v[Q];
     }
 
-    const char *fmi2GetTypesPlatform(void) { return "default"; }
-    const char *fmi2GetVersion(void) { return "2.0"; }
     fmi2Component fmi2Instantiate(fmi2String name, fmi2Type type, fmi2String guid,
             fmi2String resources, const fmi2CallbackFunctions *functions,
             fmi2Boolean visible, fmi2Boolean loggingOn) {
@@ -386,15 +408,11 @@ PUMP_ME_C = textwrap.dedent(r"""
         start(p);
         return p;
     }
-    void fmi2FreeInstance(fmi2Component c) { free(c); }
-    fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean on, size_t n,
-                                   const fmi2String categories[]) { return fmi2OK; }
     fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean tolDefined, fmi2Real tol,
             fmi2Real tStart, fmi2Boolean stopDefined, fmi2Real tStop) {
         ((Pump *)c)->t = tStart;
         return fmi2OK;
     }
-    fmi2Status fmi2EnterInitializationMode(fmi2Component c) { return fmi2OK; }
     fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
         Pump *p = c;
         p->v[Q] = target(p);
@@ -403,7 +421,6 @@ PUMP_ME_C = textwrap.dedent(r"""
         update(p);
         return fmi2OK;
     }
-    fmi2Status fmi2Terminate(fmi2Component c) { return fmi2OK; }
     fmi2Status fmi2Reset(fmi2Component c) { start(c); return fmi2OK; }
     fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                            const fmi2Real value[]) {
@@ -437,10 +454,6 @@ PUMP_ME_C = textwrap.dedent(r"""
         x[0] = ((Pump *)c)->v[Q];
         return fmi2OK;
     }
-    fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real x[], size_t nx) {
-        x[0] = 1.0e-4;
-        return fmi2OK;
-    }
     fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real dx[], size_t nx) {
         Pump *p = c;
         if (p->v[FAIL_AFTER] > 0.0 && p->t >= p->v[FAIL_AFTER]) {
@@ -458,7 +471,6 @@ PUMP_ME_C = textwrap.dedent(r"""
         z[0] = qm <= 0.0 ? 1.0 : p->at_stop ? qm - target(p) : qm - p->v[Q];
         return fmi2OK;
     }
-    fmi2Status fmi2EnterEventMode(fmi2Component c) { return fmi2OK; }
     fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *info) {
         Pump *p = c;
         double ts = p->v[T_SWITCH];
@@ -472,12 +484,6 @@ PUMP_ME_C = textwrap.dedent(r"""
         info->valuesOfContinuousStatesChanged = q != p->v[Q] ? fmi2True : fmi2False;
         info->nextEventTimeDefined = (!p->switched && ts > 0.0) ? fmi2True : fmi2False;
         info->nextEventTime = ts;
-        return fmi2OK;
-    }
-    fmi2Status fmi2EnterContinuousTimeMode(fmi2Component c) { return fmi2OK; }
-    fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean noSetPrior,
-            fmi2Boolean *enterEventMode, fmi2Boolean *terminate) {
-        *enterEventMode = fmi2False; *terminate = fmi2False;
         return fmi2OK;
     }
     """)
@@ -536,11 +542,7 @@ def c_pump_me(where: Path, name: str = 'lag_pump_me') -> Path:
 # A load as a user might bring it as model exchange, in C: an orifice whose flow lags its
 # law, q' = (Cd_A sqrt(2 max(p, 0) / 850) - q) / tau, p its input (the node's pressure,
 # gauge), q its output; it starts settled at its law.
-LAG_ORIFICE_ME_C = textwrap.dedent(r"""
-    #include <math.h>
-    #include <stdlib.h>
-    #include "fmi2TypesPlatform.h"
-    #include "fmi2FunctionTypes.h"
+LAG_ORIFICE_ME_C = ME_SCAFFOLD + textwrap.dedent(r"""
 
     enum { PRESSURE, FLOW, Q, DQ, CD_A, TAU, N };
     typedef struct { double v[N]; } Orifice;
@@ -557,8 +559,6 @@ LAG_ORIFICE_ME_C = textwrap.dedent(r"""
         o->v[FLOW] = o->v[Q];
     }
 
-    const char *fmi2GetTypesPlatform(void) { return "default"; }
-    const char *fmi2GetVersion(void) { return "2.0"; }
     fmi2Component fmi2Instantiate(fmi2String name, fmi2Type type, fmi2String guid,
             fmi2String resources, const fmi2CallbackFunctions *functions,
             fmi2Boolean visible, fmi2Boolean loggingOn) {
@@ -567,19 +567,14 @@ LAG_ORIFICE_ME_C = textwrap.dedent(r"""
         if (o) start(o);
         return o;
     }
-    void fmi2FreeInstance(fmi2Component c) { free(c); }
-    fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean on, size_t n,
-                                   const fmi2String categories[]) { return fmi2OK; }
     fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean tolDefined, fmi2Real tol,
             fmi2Real tStart, fmi2Boolean stopDefined, fmi2Real tStop) { return fmi2OK; }
-    fmi2Status fmi2EnterInitializationMode(fmi2Component c) { return fmi2OK; }
     fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
         Orifice *o = c;
         o->v[Q] = law(o);
         update(o);
         return fmi2OK;
     }
-    fmi2Status fmi2Terminate(fmi2Component c) { return fmi2OK; }
     fmi2Status fmi2Reset(fmi2Component c) { start(c); return fmi2OK; }
     fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                            const fmi2Real value[]) {
@@ -611,10 +606,6 @@ LAG_ORIFICE_ME_C = textwrap.dedent(r"""
         x[0] = ((Orifice *)c)->v[Q];
         return fmi2OK;
     }
-    fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real x[], size_t nx) {
-        x[0] = 1.0e-4;
-        return fmi2OK;
-    }
     fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real dx[], size_t nx) {
         update(c);
         dx[0] = ((Orifice *)c)->v[DQ];
@@ -623,7 +614,6 @@ LAG_ORIFICE_ME_C = textwrap.dedent(r"""
     fmi2Status fmi2GetEventIndicators(fmi2Component c, fmi2Real z[], size_t nz) {
         return fmi2OK;
     }
-    fmi2Status fmi2EnterEventMode(fmi2Component c) { return fmi2OK; }
     fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *info) {
         info->newDiscreteStatesNeeded = fmi2False;
         info->terminateSimulation = fmi2False;
@@ -631,12 +621,6 @@ LAG_ORIFICE_ME_C = textwrap.dedent(r"""
         info->valuesOfContinuousStatesChanged = fmi2False;
         info->nextEventTimeDefined = fmi2False;
         info->nextEventTime = 0.0;
-        return fmi2OK;
-    }
-    fmi2Status fmi2EnterContinuousTimeMode(fmi2Component c) { return fmi2OK; }
-    fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean noSetPrior,
-            fmi2Boolean *enterEventMode, fmi2Boolean *terminate) {
-        *enterEventMode = fmi2False; *terminate = fmi2False;
         return fmi2OK;
     }
     """)

@@ -26,16 +26,6 @@ def schedule(t):
     return 0.5 if t < 0.05 - 1e-9 else 0.6
 
 
-@pytest.fixture(scope='module')
-def pump3(tmp_path_factory):
-    return fmus.c_pump3(tmp_path_factory.mktemp('pump3'))
-
-
-@pytest.fixture(scope='module')
-def pump_me(tmp_path_factory):
-    return fmus.c_pump_me(tmp_path_factory.mktemp('pump_me'))
-
-
 def _alone(path, n, dt=1.0e-3, period=0.005):
     """The FMU run by FMPy alone (the C ones: their closed form): the current of each
     control instant held for its period; the line flow at the start, then after each

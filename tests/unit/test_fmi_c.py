@@ -22,16 +22,6 @@ from .test_fmi_calibration import GAIN, recordings, TAU  # noqa: F401 (a fixture
 pytest.importorskip('fmpy')
 
 
-@pytest.fixture(scope='module')
-def pump3(tmp_path_factory):
-    return fmus.c_pump3(tmp_path_factory.mktemp('pump3'))
-
-
-@pytest.fixture(scope='module')
-def pump_me(tmp_path_factory):
-    return fmus.c_pump_me(tmp_path_factory.mktemp('pump_me'))
-
-
 def _run(sim, currents, signal='line_flow'):
     j = sim.model.signal_index(signal)
     out = []
@@ -76,16 +66,20 @@ def test_the_plant_steps_an_fmi_3_fmu_as_its_closed_form(pump3, params):
         sim.close()
 
 
-def test_a_failing_fmi_3_step_is_the_fmus_own_message(pump3, params):
-    sim = FmuSimulator(pump3, params)
+@pytest.mark.parametrize('fmu, fail_after, call', [('pump3', 0.002, 'fmi3DoStep'),
+                                                   ('pump_me', 0.0025, 'CVode')])
+def test_a_failing_step_is_the_fmus_own_message(fmu, fail_after, call, params, request):
+    """The FMI 3.0 pump fails its step, the model-exchange one its derivatives, past
+    ``fail_after``: the third step ends with the FMU's own message."""
+    sim = FmuSimulator(request.getfixturevalue(fmu), params)
     try:
-        sim.set_parameters({'fail_after': 0.002})
+        sim.set_parameters({'fail_after': fail_after})
         sim.reset()
         sim.step()
         sim.step()
         with pytest.raises(IntegrationError) as info:
             sim.step()
-        assert str(info.value) == ('the FMU failed in fmi3DoStep at t = 0.002 s of simulation '
+        assert str(info.value) == (f'the FMU failed in {call} at t = 0.002 s of simulation '
                                    'time: the pump model diverged (made to, for the test)')
     finally:
         sim.close()
@@ -174,21 +168,6 @@ def test_the_plant_finds_a_model_exchange_fmus_state_event(pump_me, params):
     at_stop = np.flatnonzero(flow >= q_max * (1 - 1e-9))
     assert at_stop[0] == 45 and at_stop[-1] == 69           # met at 45.06 ms, left at 70 ms
     assert flow[-1] < 0.8 * q_max
-
-
-def test_a_failing_model_exchange_fmu_is_its_own_message(pump_me, params):
-    sim = FmuSimulator(pump_me, params)
-    try:
-        sim.set_parameters({'fail_after': 0.0025})
-        sim.reset()
-        sim.step()
-        sim.step()
-        with pytest.raises(IntegrationError) as info:
-            sim.step()
-        assert str(info.value) == ('the FMU failed in CVode at t = 0.002 s of simulation '
-                                   'time: the pump model diverged (made to, for the test)')
-    finally:
-        sim.close()
 
 
 def test_a_model_exchange_fmu_is_calibrated_to_the_closed_form(pump_me, recordings,  # noqa: F811

@@ -243,6 +243,8 @@ class _Integrator:
         self.inst, f, md = inst, inst._fmu, inst.info.description
         self.v3 = inst.fmi == 'fmi3'
         self.needs_completed = bool(md.modelExchange.needsCompletedIntegratorStep)
+        self.input_refs = [inst.vr[n] for n in inst.info.of('input')
+                           if inst.info.variables[n].real]
         self._enter(at)
 
         class Held:               # the inputs are held over a step: nothing to apply
@@ -295,9 +297,7 @@ class _Integrator:
         self.solver.reset(0.0)
 
     def _inputs(self) -> list[float]:
-        inst = self.inst
-        refs = [inst.vr[n] for n in inst.info.of('input') if inst.info.variables[n].real]
-        return inst.get(refs) if refs else []
+        return self.inst.get(self.input_refs)
 
     def _discrete(self, at) -> float | None:
         """The FMU's discrete states updated until it needs no more; the time of its next
