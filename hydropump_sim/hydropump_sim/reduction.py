@@ -7,15 +7,19 @@ static when its slowest mode is much faster than the control period ``T``: secti
 making each such component static alone on a test run (every load's command and the pump's
 current stepped), as the controller sees it: averaged over ``T``. The pump alone is one such
 component, its static form the paper's simplified model (eq. 10).
+
+:func:`with_fidelity` runs that simplified model in place of the fine one (the ``fidelity``
+of the simulator node and of ``hydropump circuit``), with its error bound.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 import math
 
 import numpy as np
 
+from .errors import InputError
 from .linear import linearize, LinearModel, modal_analysis, Mode
 from .metrics import moving_average
 from .simulate import simulate
@@ -27,6 +31,8 @@ T_CONTROL = 0.05
 #: A mode may be made static when it is this much faster than T (epsilon = tau/T below it):
 #: the separation section IV asks for ("much smaller"), a fifth.
 EPSILON_STATIC = 0.2
+#: The fidelities a model runs at: the fine model, or section IV's simplified one.
+FIDELITIES = ('fine', 'simplified')
 
 
 def component_of(model: Model, state: str) -> str:
@@ -84,6 +90,20 @@ def test_inputs(model: Model, duration: float) -> dict:
     return out
 
 
+def same_start(model: Model, x: np.ndarray, simple: Model) -> np.ndarray:
+    """The state of ``simple`` that starts where ``model`` is at ``x``: every state it keeps
+    (by name) at its value there, the others at its own start. Each from its own steady
+    state would judge the two steady states too, and a pressure that compensated loads leave
+    free (a pump in open loop against its relief valve) differs there by more than any
+    transient."""
+    out = np.array(simple.start_states(simple.u0)[0], dtype=float)
+    at = {name: k for k, name in enumerate(model.states)}
+    for j, name in enumerate(simple.states):
+        if name in at:
+            out[j] = x[at[name]]
+    return out
+
+
 def _errors(full, simple, names, T: float) -> dict[str, float]:
     """The largest deviation of each signal, as the controller sees it (averaged over the
     control period ``T``), as a fraction of its excursion in the full model."""
@@ -127,7 +147,8 @@ def singular_perturbation(model: Model, eq: SteadyState | None = None,
             continue
         error = {}
         if each and removed and tau < EPSILON_STATIC * T:
-            res = simulate(model.made_static([comp]), duration, ins)
+            simple = model.made_static([comp])
+            res = simulate(simple, duration, ins, x0=same_start(model, eq.x, simple))
             error = _errors(full, res, names, T)
         checks.append(ComponentCheck(comp, tuple(own), removed, tau, tau / T, bool(removed),
                                      error))
@@ -139,9 +160,73 @@ def singular_perturbation(model: Model, eq: SteadyState | None = None,
     fast = [c.component for c in checks if c.outside]
     simplified = {'components': fast, 'sets': model.static_sets(fast), 'error': {}}
     if fast:
-        res = simulate(model.made_static(fast), duration, ins)
+        simple = model.made_static(fast)
+        res = simulate(simple, duration, ins, x0=same_start(model, eq.x, simple))
         simplified['error'] = _errors(full, res, names, T)
     return checks, simplified
+
+
+@dataclass(frozen=True)
+class Fidelity:
+    """Which model runs: ``fine``, or ``simplified``: section IV at the control bandwidth
+    ``bandwidth`` [Hz] (``T = 1/bandwidth``), its ``components`` made static, with the
+    ``error`` of each judged signal measured against the fine model on section IV's test run
+    as the controller sees it (averaged over ``T``, a fraction of its excursion)."""
+
+    name: str = 'fine'
+    bandwidth: float = 1.0 / T_CONTROL
+    components: tuple[str, ...] = ()
+    error: dict = field(default_factory=dict)
+
+    @property
+    def bound(self) -> float:
+        """The largest error of any judged signal (0 for the fine model)."""
+        return max(self.error.values(), default=0.0)
+
+    def text(self) -> str:
+        """One line for a log, a report or the node's diagnostics."""
+        if self.name == 'fine':
+            return 'fine'
+        made = ', '.join(self.components) or 'nothing'
+        return (f'simplified at {self.bandwidth:.3g} Hz: {made} made static; error bound '
+                f"{self.bound:.2%} of each signal's excursion in the bandwidth")
+
+
+def with_fidelity(model: Model, fidelity: str = 'fine', bandwidth: float = 0.0,
+                  controller: float | None = None, eq: SteadyState | None = None
+                  ) -> tuple[Model, Fidelity]:
+    """The model to run at ``fidelity`` and what it is (:class:`Fidelity`).
+
+    ``simplified`` makes static, as :func:`singular_perturbation` does, the components whose
+    removable modes are faster than ``EPSILON_STATIC / bandwidth``. ``bandwidth`` [Hz] 0
+    takes the controller's (``controller`` [Hz], else section IV's ``1/T_CONTROL``). A
+    bandwidth below the controller's that would make static a mode the controller acts on
+    (one slower than ``EPSILON_STATIC`` of the controller's period) is refused, naming the
+    mode: the controller would run against a plant without it.
+    """
+    if fidelity not in FIDELITIES:
+        raise InputError(f'fidelity = {fidelity!r}: use {" or ".join(FIDELITIES)}')
+    if fidelity == 'fine':
+        return model, Fidelity()
+    if not (isinstance(bandwidth, (int, float)) and math.isfinite(bandwidth)
+            and bandwidth >= 0):
+        raise InputError(f'fidelity bandwidth = {bandwidth!r}: expected a frequency in Hz '
+                         "(0 = the controller's)")
+    bandwidth = float(bandwidth) or controller or 1.0 / T_CONTROL
+    checks, simple = singular_perturbation(model, eq, 1.0 / bandwidth, each=False)
+    if controller is not None and bandwidth < controller:
+        needed = [c for c in checks if c.outside and c.tau >= EPSILON_STATIC / controller]
+        if needed:
+            c = max(needed, key=lambda c: c.tau)
+            raise InputError(
+                f'fidelity bandwidth = {bandwidth:g} Hz: it would make static {c.component} '
+                f'(its mode of {c.tau * 1e3:.3g} ms), which the controller acts on (its '
+                f'bandwidth {controller:.3g} Hz keeps every mode slower than '
+                f'{EPSILON_STATIC / controller * 1e3:.3g} ms); give at least '
+                f"{EPSILON_STATIC / c.tau:.3g} Hz, or 0 for the controller's")
+    made = tuple(simple['components'])
+    return (model.made_static(list(made)) if made else model,
+            Fidelity('simplified', bandwidth, made, dict(simple['error'])))
 
 
 def line_capacitance(model: Model, eq: SteadyState, node: str) -> float:

@@ -43,6 +43,7 @@ import numpy as np
 from . import energy
 from .measure import Readout
 from .params import Params
+from .reduction import FIDELITIES
 from .schema import fmt, replace, spec
 from .sensors import SensorBank, SensorProfile
 from .simulate import IntegrationError, Simulator
@@ -80,6 +81,14 @@ class SimulatorConfig:
     scenario_file: str = spec('path', 'inputs scheduled in simulation time (hydropump simulate '
                               "format): load pressure, aperture, shaft speed, a circuit's own "
                               '(boom.command); empty = none', default='')
+    fidelity: str = spec('-', 'the circuit run: fine, or simplified (section IV: the '
+                         'components whose modes lie beyond fidelity_bandwidth made static; '
+                         '/diagnostics gives its error bound); live: from the next ~/reset on',
+                         choices=FIDELITIES, default='fine', live=True)
+    fidelity_bandwidth: float = spec('Hz', 'control bandwidth of the simplified fidelity; 0 = '
+                                     "the controller's, as designed for the circuit (live: "
+                                     'from the next ~/reset on)', 0.0, 1.0e4, default=0.0,
+                                     live=True)
     dt: float = spec('s', 'integration increment (inputs are held over it)', 1.0e-5, 0.01,
                      default=1.0e-3)
     publish_rate: float = spec('Hz', 'measurement rate: 1/dt divided by a whole number',
@@ -613,6 +622,7 @@ class Runner:
                     'commanded_current': self._current}
         rtf = self.cfg.real_time_factor
         snap['sim_time'] = self.sim.t
+        snap['fidelity'] = self.sim.fidelity
         with self._cv:
             costs = np.array(self._costs)
         snap['step_budget'] = self.step_budget

@@ -440,6 +440,9 @@ class Simulator:
         self.config = config
         self._stepper = self.model.stepper_model()
         self.stats = np.zeros(2, dtype=np.int64)
+        #: What its model is, where it was simplified (a ``reduction.Fidelity``, set by who
+        #: simplified it); ``None``: the model as given.
+        self.fidelity = None
         self.u = self.model.u0.copy()
         self.t = 0.0
         self.steps = 0

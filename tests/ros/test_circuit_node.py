@@ -208,3 +208,49 @@ def test_a_bad_circuit_file_exits_with_one_line_naming_the_component(tmp_path, r
     assert proc.returncode == 2 and 'Traceback' not in proc.stderr
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and 'boom: port tank is not connected' in lines[0], proc.stderr
+
+
+def test_fig1_at_the_simplified_fidelity_and_a_change_taken_at_the_reset(nodes, test_node):
+    """``fidelity:=simplified``: /diagnostics names it, what it made static and its error
+    bound; the boom still takes its compensated flow (the closed form, within 5 %). A
+    bandwidth that would drop a mode the controller acts on is refused, naming it; a change
+    to ``fine`` is taken, shown as the next fidelity, and runs from the next ~/reset."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rcl_interfaces.srv import SetParameters
+    from std_msgs.msg import Float64
+    from std_srvs.srv import Trigger
+    nodes.start('simulator', '-p', f'circuit_file:={FIG1}', '-p', f'circuit_sets:={LS_PUMP}',
+                '-p', 'fidelity:=simplified', '-p', 'diagnostics_period:=0.2')
+    model = []
+    test_node.create_subscription(DiagnosticArray, '/diagnostics', lambda m: model.extend(
+        {v.key: v.value for v in s.values} for s in m.status if s.name == 'simulator: model'),
+        10)
+    boom = Flow(test_node, 'boom')
+    cmd = test_node.create_publisher(Float64, 'loads/boom/command', 10)
+    setp = test_node.create_client(SetParameters, 'simulator/set_parameters')
+    reset = test_node.create_client(Trigger, 'simulator/reset')
+    wait_for_subscriber(test_node, 'loads/boom/command')
+    spin_until(test_node, lambda: model, 60, 'the model diagnostics')
+    first = model[-1]
+    assert first['fidelity'] == 'simplified' and 'boom.comp' in first['made_static'].split()
+    assert 0.0 < float(first['error_bound']) < 1.0
+    publish = Every(0.05, lambda: cmd.publish(Float64(data=0.5)))
+    q = boom.settled(test_node, boom_flow(0.5), each=publish)
+    assert q == pytest.approx(boom_flow(0.5), rel=0.05 + REGULATION)
+
+    def set_(name, value):
+        return call(test_node, setp, SetParameters.Request(
+            parameters=[_param(name, value)]), timeout=120).results[0]
+    low = set_('fidelity_bandwidth', 1.0)
+    assert not low.successful and 'the controller acts on' in low.reason, low.reason
+    fine = set_('fidelity', 'fine')
+    assert fine.successful, fine.reason
+    model.clear()
+    spin_until(test_node, lambda: model, 30, 'the model diagnostics')
+    # Until the reset the simplified model runs on.
+    assert model[-1]['fidelity'] == 'simplified' and model[-1]['next_fidelity'] == 'fine'
+    assert call(test_node, reset, Trigger.Request()).success
+    model.clear()
+    spin_until(test_node, lambda: model and model[-1]['fidelity'] == 'fine', 30,
+               'the fine model after the reset')
+    assert model[-1]['made_static'] == '' and float(model[-1]['error_bound']) == 0.0

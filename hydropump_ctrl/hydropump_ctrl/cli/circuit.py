@@ -40,6 +40,12 @@ def register(sub) -> None:
                    "[Pa] (default: the controller configuration's)")
     c.add_argument('--scenario', help='YAML file: duration, set (dotted values) and inputs '
                    'scheduled in time (the scenario format of hydropump simulate)')
+    c.add_argument('--fidelity', choices=('fine', 'simplified'), default='fine',
+                   help="the circuit run: fine, or section IV's simplified one (the modes "
+                   "beyond the bandwidth made static, its error bound printed)")
+    c.add_argument('--bandwidth', type=positive_float('Hz', 1.0e4),
+                   help='control bandwidth [Hz] of --fidelity simplified (default: margin '
+                   "control's, else section IV's 20 Hz)")
     c.add_argument('--json', action='store_true', help='the final values as JSON on stdout')
     c.add_argument('--csv', help='write every signal over time to this CSV file')
     c.add_argument('--analyze', action='store_true', help='steady state, modes, section IV '
@@ -106,8 +112,12 @@ def cmd_circuit(args) -> int:
             circuit.electric_pump() else 'open'
     if control != 'margin' and (args.algorithm or (args.margin is not None and control == 'open')):
         raise UsageError(f'--algorithm and --margin go with --control margin (not {control})')
+    if args.bandwidth is not None and args.fidelity == 'fine':
+        raise UsageError('--bandwidth goes with --fidelity simplified')
     run = run_circuit(circuit, duration, inputs, control=control, algorithm=args.algorithm,
-                      margin=args.margin)
+                      margin=args.margin, fidelity=args.fidelity,
+                      bandwidth=args.bandwidth or 0.0)
+    fid = run.info['fidelity']
     elapsed = time.perf_counter() - t0
     final = run.final()
     units = {n: run.circuit.signal_units[run.circuit.signal_index(n)] for n in final}
@@ -120,9 +130,14 @@ def cmd_circuit(args) -> int:
     if args.json:
         print(json.dumps({'circuit': run.circuit.name, 'control': control,
                           'algorithm': run.algorithm, 'margin': run.margin,
-                          'duration': duration, 'signals': final, 'units': units}, indent=2))
+                          'duration': duration, 'fidelity': {
+                              'name': fid.name, 'bandwidth': fid.bandwidth,
+                              'static': list(fid.components), 'error_bound': fid.bound},
+                          'signals': final, 'units': units}, indent=2))
     else:
         print(f'{run.circuit.name}: {duration:g} s under {how}, {elapsed:.1f} s')
+        if fid.name != 'fine':
+            print(f'fidelity: {fid.text()}')
         width = max(len(n) for n in final)
         for name, value in final.items():
             print(f'  {name:<{width}}  {_fmt(value, units[name])}')

@@ -20,6 +20,7 @@ from __future__ import annotations
 from collections.abc import Iterator, Mapping
 import dataclasses
 from dataclasses import dataclass
+import math
 from pathlib import Path
 from typing import Any
 
@@ -310,6 +311,16 @@ class ControllerConfig:
         """Measurement delay of the embedded model in whole update periods (at least one: the
         sample of ``t_k`` is compared with the model driven by the command of ``t_k-1``)."""
         return max(1, int(round(self.model.t_d / self.period)))
+
+    def bandwidth(self, mode: str | None = None) -> float:
+        """The control bandwidth [Hz] of ``mode`` (default: the faster of flow and margin
+        mode): ``1/(2 pi tau)`` of its fastest state-feedback or reference eigenvalue, the
+        fastest dynamics the loop acts on (section IV's separation is judged against it)."""
+        e = self.emc
+        taus = {'flow': (e.tau_control, e.tau_reference),
+                'margin': (e.tau_margin_flow, e.tau_margin_reference, e.tau_margin_loop)}
+        use = taus.get(mode, (*taus['flow'], *taus['margin']))
+        return 1.0 / (2.0 * math.pi * min(use))
 
     def group(self, name: str):
         """Group object by its parameter prefix (``'pi.flow'`` -> ``pi_flow``)."""

@@ -25,7 +25,7 @@ import numpy as np
 from hydropump_sim.circuit import Circuit, CircuitError
 from hydropump_sim.errors import InputError
 from hydropump_sim.inputs import Signal
-from hydropump_sim.reduction import line_capacitance
+from hydropump_sim.reduction import line_capacitance, with_fidelity
 from hydropump_sim.sensors import SensorConfig, SensorProfile
 from hydropump_sim.steady import equilibrium
 
@@ -170,7 +170,8 @@ def run_circuit(circuit: Circuit, duration: float,
                 algorithm: str | None = None, margin: float | None = None,
                 config: ControllerConfig | None = None, profile: SensorProfile | None = None,
                 settle: float | None = None, dt: float = 1.0e-3,
-                events: Sequence[Event] = ()) -> CircuitRun:
+                events: Sequence[Event] = (), fidelity: str = 'fine',
+                bandwidth: float = 0.0) -> CircuitRun:
     """Run a circuit for ``duration`` [s] with scheduled ``inputs`` under ``control``.
 
     Parameters
@@ -192,6 +193,10 @@ def run_circuit(circuit: Circuit, duration: float,
         settles from its start (default 1.5 s under margin control, 0 otherwise).
     events : sequence of Event
         Inputs held from their time on (an operator's duty cycle), and controller events.
+    fidelity, bandwidth : str, float
+        The circuit run: ``fine``, or section IV's ``simplified`` one at ``bandwidth`` [Hz]
+        (0: margin control's, else section IV's); see
+        :func:`hydropump_sim.reduction.with_fidelity`. ``info['fidelity']`` says which ran.
     """
     if control not in CONTROLS:
         raise InputError(f'control {control!r}: choose one of {", ".join(CONTROLS)}')
@@ -209,6 +214,10 @@ def run_circuit(circuit: Circuit, duration: float,
                                                     else MARGIN)
         circuit = hydromechanical(circuit, margin)
     settle = (1.5 if control == 'margin' else 0.0) if settle is None else settle
+    # The controller is designed for the machine (the fine circuit); the simplified circuit
+    # leaves out only what lies beyond its bandwidth.
+    circuit, fid = with_fidelity(circuit, fidelity, bandwidth,
+                                 cfg.bandwidth('margin') if control == 'margin' else None)
     ctrl, start, x0 = None, None, None
     if control == 'margin':
         if not circuit.electric_pump():
@@ -232,4 +241,4 @@ def run_circuit(circuit: Circuit, duration: float,
                       run.meas, run.mode, run.violations, control,
                       ctrl.algorithm if ctrl else None, margin,
                       {'config': cfg if ctrl is not None else None,
-                       'violations': run.violations})
+                       'violations': run.violations, 'fidelity': fid})

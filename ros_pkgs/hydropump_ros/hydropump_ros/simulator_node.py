@@ -31,6 +31,7 @@ from hydropump_sim.circuit import default_circuit_path, load_circuit
 from hydropump_sim.errors import HydropumpError
 from hydropump_sim.measure import FLOW_SIGNALS, JOINTS, model_topics, PRESSURE_SIGNALS
 from hydropump_sim.params import default_params_path, Params
+from hydropump_sim.reduction import with_fidelity
 from hydropump_sim.runner import LIVE_INPUTS, Runner, SimulatorConfig
 from hydropump_sim.scenario import load_scenario, ScenarioError
 from hydropump_sim.scenario import SIGNALS as SCENARIO_INPUTS
@@ -169,6 +170,7 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         path = self._circuit_file = cfg.circuit_file or str(default_circuit_path())
         self.params = params
         self.cfg = cfg
+        self._fidelity = (cfg.fidelity, cfg.fidelity_bandwidth)
         if cfg.fmu_file:
             return self._configure_fmu(d, cfg, sensors, overrides)
         try:
@@ -213,6 +215,9 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         if cfg.circuit_file or cfg.circuit_sets:
             raise bridge.StartupError(['fmu_file: the FMU is the whole plant; give no '
                                        'circuit_file or circuit_sets with it'])
+        if cfg.fidelity != 'fine':
+            raise bridge.StartupError(['fidelity: an FMU plant runs as it is; give fidelity '
+                                       'fine (the default) with fmu_file'])
         from hydropump_ctrl.fmi.plant import FmuSimulator
         try:
             plant = FmuSimulator(cfg.fmu_file, self.params, cfg.dt)
@@ -291,24 +296,46 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         return load_circuit(self._circuit_file, assignments(
             sets.split(), 'circuit_sets', 'boom.compensator=post'), plant=self.params)
 
-    def _simulator(self, circuit) -> Simulator:
-        """The stepper of a circuit, which must have a pump."""
+    def _simulator(self, circuit, fidelity: tuple[str, float] | None = None) -> Simulator:
+        """The stepper of a circuit, which must have a pump, at ``fidelity`` (name,
+        bandwidth; default the node's)."""
         if circuit.pump() is None:
             raise HydropumpError([f'{circuit.name}: the simulator node runs a circuit with a '
                                   'pump (type pump or ls_pump)'])
+        name, bandwidth = fidelity or self._fidelity
         if circuit.external():
+            if name != 'fine':
+                raise HydropumpError(['fidelity: a circuit with FMU loads runs fine only'])
             # A user's FMU loads, stepped beside the circuit (co-simulation).
             from hydropump_ctrl.fmi.loads import CoupledSimulator
             return CoupledSimulator(circuit, self.cfg.dt)
-        return Simulator(circuit, self.cfg.dt)
+        circuit, fid = with_fidelity(circuit, name, bandwidth,
+                                     self._controller_bandwidth(circuit, name, bandwidth))
+        sim = Simulator(circuit, self.cfg.dt)
+        sim.fidelity = fid
+        return sim
 
-    def _other_circuit(self, sets: str) -> tuple[Simulator | None, str | None]:
-        """The plant of new ``circuit_sets``, or why not: its topics, commands and joints
-        must be those the node has (publishers and subscriptions are made once)."""
+    @staticmethod
+    def _controller_bandwidth(circuit, name: str, bandwidth: float) -> float | None:
+        """The bandwidth [Hz] of the controller designed for the circuit (either mode), which
+        the simplified fidelity must not reach into; ``None`` where none is designed."""
+        if name == 'fine':
+            return None
+        from hydropump_ctrl.experiments.circuit_loop import controller_config
         try:
-            plant = self._simulator(self._circuit(sets))
+            return controller_config(circuit).bandwidth()
+        except HydropumpError:
+            return None
+
+    def _other_circuit(self, sets: str, fidelity: tuple[str, float], label: str = ''
+                       ) -> tuple[Simulator | None, str | None]:
+        """The plant of new ``circuit_sets`` at ``fidelity``, or why not (after ``label``):
+        its topics, commands and joints must be those the node has (publishers and
+        subscriptions are made once)."""
+        try:
+            plant = self._simulator(self._circuit(sets), fidelity)
         except HydropumpError as exc:
-            return None, f'circuit_sets = {sets!r}: ' + '; '.join(exc.lines or [str(exc)])
+            return None, label + '; '.join(exc.lines or [str(exc)])
         old = self.runner.sim
 
         def face(sim):
@@ -356,18 +383,29 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
     def _on_set_parameters(self, params):
         reason = bridge.refusal(self.schema_specs, params)
         plant = None
-        for p in params:
-            if reason is None and p.name == 'circuit_sets':
-                plant, reason = (None, 'circuit_sets: the plant is an FMU (fmu_file)') \
-                    if self.cfg.fmu_file else \
-                    (None, 'circuit_sets: the circuit has FMU loads; restart the simulator '
-                           'to change it') if getattr(self.runner.sim, 'loads', None) else \
-                    self._other_circuit(p.value)
+        new = {p.name: p.value for p in params}
+        fidelity = (new.get('fidelity', self._fidelity[0]),
+                    new.get('fidelity_bandwidth', self._fidelity[1]))
+        if reason is None and ({'circuit_sets', 'fidelity', 'fidelity_bandwidth'} & set(new)):
+            sets = new.get('circuit_sets', self.get_parameter('circuit_sets').value)
+            what = 'circuit_sets' if 'circuit_sets' in new else 'fidelity'
+            plant, reason = (None, f'{what}: the plant is an FMU (fmu_file)') \
+                if self.cfg.fmu_file else \
+                (None, f'{what}: the circuit has FMU loads; restart the simulator '
+                       'to change it') if getattr(self.runner.sim, 'loads', None) else \
+                self._other_circuit(sets, fidelity, f'circuit_sets = {sets!r}: '
+                                    if 'circuit_sets' in new else '')
+            if plant is not None and fidelity != self._fidelity:
+                # The running plant stays until the reset: a change of model mid-run would
+                # jump every state. (rclpy drops the reason of an accepted change: logged.)
+                self.get_logger().info(f'fidelity {plant.fidelity.text()}: from the next '
+                                       '~/reset on')
         if reason is None:
+            self._fidelity = fidelity
             if plant is not None:
                 self.runner.set_plant(plant)
             for p in params:
-                if p.name == 'circuit_sets':
+                if p.name in ('circuit_sets', 'fidelity', 'fidelity_bandwidth'):
                     continue
                 if p.name in self._inputs:
                     self.runner.set_input(self._inputs[p.name], p.value)
@@ -545,6 +583,8 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
                                             for k, v in values.items()])
         ok, warn, error = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
         bad = stats['nan_commands'] or stats['clamped_commands'] or d['watchdog']
+        fid = d['fidelity']
+        pending = self._fidelity[0] != (fid.name if fid is not None else 'fine')
         arr = DiagnosticArray(status=[
             status('plant', warn if any(flags.values()) else ok,
                    ', '.join(k for k, v in flags.items() if v) or 'inside all limits', flags),
@@ -563,7 +603,15 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
                     'step_period_s': f'{d["step_budget"]:.6f}',
                     'step_overruns': d['overruns'],
                     'lock_step': self.cfg.lock_step}),
-            status('command', warn if bad else ok,
+            # Which model runs, and how far the simplified one may be from the fine one.
+            status('model', ok, (fid.text() if fid is not None else 'fine') + (
+                f'; {self._fidelity[0]} from the next ~/reset' if pending else ''),
+                   {'fidelity': fid.name if fid is not None else 'fine',
+                    'next_fidelity': self._fidelity[0] if pending else '',
+                    'fidelity_bandwidth_hz': f'{fid.bandwidth:.4g}' if fid and fid.components
+                    else '', 'made_static': ' '.join(fid.components) if fid else '',
+                    'error_bound': f'{fid.bound:.4g}' if fid is not None else '0'}),
+                        status('command', warn if bad else ok,
                    'watchdog: safe current applied' if d['watchdog'] else
                    'bad commands received' if bad else 'ok',
                    {'command_age_s': f'{d["command_age"]:.4f}',
