@@ -511,3 +511,50 @@ def run_dense(m, X0, t0, dt, U, P, rtol, h_min, max_steps, decim, Y, X, stats, m
         k = k_end
     return OK, n_inc
 
+
+
+
+@jit
+def advance_bounded(m, t0, t1, X, u, P, h, rtol, max_steps, stats, ny):
+    """Integrate every row of ``X`` in place from ``t0`` to ``t1`` (inputs ``u`` held) in
+    Rodas4 steps of at most ``h``, at most ``max_steps`` of them tried: the bounded work of a
+    real-time increment. Steps of ``h`` are error-controlled as in :func:`advance` (a switch
+    or a stop asks for shorter ones); once the steps left would only just reach ``t1``, each
+    is taken whatever its error. Returns a status code; only a state that stops being
+    finite fails (the state is then left as it was)."""
+    rows, n = X.shape
+    Xnew = np.empty((rows, n))
+    X0 = X.copy()
+    ws = workspace(n, ny)
+    no_dense = np.empty((0, 2, n))
+    h_max = h
+    t = t0
+    tried = 0
+    last_rejected = False
+    while t < t1:
+        left = t1 - t
+        budget = max_steps - tried
+        # No room for a rejection: the steps left only just reach t1 (or one is left).
+        force = budget == 1 or budget * h <= left * (1.0 + 1.0e-9)
+        if force:
+            h = left / budget
+        tried += 1
+        last = t + h >= t1 - 1.0e-12 * max(abs(t1), 1.0)
+        hs = left if last else h
+        err = rodas_step(m, t, X, u, P, hs, rtol, Xnew, False, ws, no_dense, last_rejected)
+        if not math.isfinite(err) and force:
+            X[:, :] = X0
+            return FAIL_NAN
+        if err <= 1.0 or force:
+            stats[0] += 1
+            X[:, :] = Xnew
+            t = t1 if last else t + hs
+            fac = 0.9 * (max(err, 1.0e-10)) ** -0.25
+            fac = min(fac, 1.0) if last_rejected else min(fac, 5.0)
+            h = min(max(hs * max(fac, 0.2), 1.0e-12), h_max)
+            last_rejected = False
+        else:
+            stats[1] += 1
+            h = hs * (0.1 if not math.isfinite(err) else max(0.9 * err ** -0.25, 0.1))
+            last_rejected = True
+    return OK

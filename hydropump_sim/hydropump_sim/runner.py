@@ -41,12 +41,13 @@ from typing import Any, Protocol
 import numpy as np
 
 from . import energy
+from .errors import InputError
 from .measure import Readout
 from .params import Params
 from .reduction import FIDELITIES
-from .schema import fmt, replace, spec
+from .schema import fmt, group, replace, spec
 from .sensors import SensorBank, SensorProfile
-from .simulate import IntegrationError, Simulator
+from .simulate import bounded_steps, IntegrationError, Simulator
 
 # Plant parameters that change the held inputs while running (the operating point).
 # In lock-step, the first instant's measurements go out again this often [s] until a command
@@ -59,6 +60,20 @@ LIVE_INPUTS = {'line.P_u': 'load_pressure', 'line.xi_u': 'aperture', 'pump.f_p':
 def _rates(dt: float, n: int = 6) -> str:
     """The first publish rates that divide ``1/dt``, for a message."""
     return ', '.join(fmt(1.0 / (k * dt)) for k in range(1, n + 1))
+
+
+@dataclass(frozen=True)
+class Solver:
+    """Group ``solver`` of the simulator node: how each increment is integrated."""
+
+    fixed_step: float = spec('s', 'a step for real time: each increment takes Rodas4 steps '
+                             'of it (shorter where the error control asks), at most max_steps, '
+                             'a bounded work (checked on the circuit at the start, refused '
+                             'with the largest step that holds); 0 = adaptive steps, as many '
+                             'as the error control takes', 0.0, 0.01, default=0.0)
+    max_steps: int = spec('-', 'with fixed_step: the most Rodas4 steps an increment tries '
+                          '(the last ones taken whatever their error): the bound of its work',
+                          1, 1000, default=16)
 
 
 @dataclass(frozen=True)
@@ -89,6 +104,7 @@ class SimulatorConfig:
                                      "the controller's, as designed for the circuit (live: "
                                      'from the next ~/reset on)', 0.0, 1.0e4, default=0.0,
                                      live=True)
+    solver: Solver = group(factory=Solver)
     dt: float = spec('s', 'integration increment (inputs are held over it)', 1.0e-5, 0.01,
                      default=1.0e-3)
     publish_rate: float = spec('Hz', 'measurement rate: 1/dt divided by a whole number',
@@ -133,6 +149,11 @@ class SimulatorConfig:
 
     def cross_checks(self) -> list[str]:
         out = []
+        if self.solver.fixed_step:
+            try:
+                bounded_steps(self.dt, self.solver.fixed_step, self.solver.max_steps)
+            except InputError as exc:
+                out.append(str(exc))
         n = 1.0 / (self.publish_rate * self.dt)
         if n < 1.0 - 1e-9:
             out.append(f'publish_rate = {fmt(self.publish_rate)} Hz: faster than 1/dt = '

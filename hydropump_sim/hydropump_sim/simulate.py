@@ -404,6 +404,30 @@ def _run_radau(model: Model, x0, dt, U, p, rtol, decim, Y, X, stats):
             row += 1
 
 
+def bounded_steps(dt: float, fixed_step: float, max_steps: int) -> int:
+    """``max_steps`` checked against the steps of ``fixed_step`` in ``dt``
+    (:func:`steps_of`), or an :class:`InputError` saying why not."""
+    n = steps_of(dt, fixed_step)
+    if isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < n:
+        raise InputError(f'solver.max_steps = {max_steps!r}: fewer than the {n} steps of '
+                         f'solver.fixed_step = {fixed_step:g} s in dt = {dt:g} s')
+    return max_steps
+
+
+def steps_of(dt: float, fixed_step: float) -> int:
+    """The whole number of steps of ``fixed_step`` [s] in an increment ``dt``, or an
+    :class:`InputError` saying why not."""
+    if not (isinstance(fixed_step, (int, float)) and math.isfinite(fixed_step)
+            and 0 < fixed_step <= dt):
+        raise InputError(f'solver.fixed_step = {fixed_step!r}: expected seconds above 0 and '
+                         f'at most dt = {dt:g} s (0: adaptive steps)')
+    n = round(dt / fixed_step)
+    if abs(n * fixed_step - dt) > 1e-9 * dt:
+        raise InputError(f'solver.fixed_step = {fixed_step:g} s: not a whole fraction of dt = '
+                         f'{dt:g} s (e.g. {dt / n:g} or {dt / (n + 1):g} s)')
+    return n
+
+
 class Simulator:
     """Fixed-increment stepper of any model (the simulator node's): holds ``t``, ``x`` and
     the inputs ``u`` (by name with :meth:`set_input`).
@@ -422,6 +446,13 @@ class Simulator:
         them).
     x0 : array_like, optional
         Where the search for that steady state starts (a nearby one).
+    fixed_step, max_steps : float, int
+        ``fixed_step`` 0: adaptive Rodas4 steps inside each increment (error-controlled,
+        ``config``, as many as it takes). Otherwise a step [s] that divides ``dt``: each
+        increment takes steps of it, shorter ones where the error control asks (a switch, a
+        stop), but at most ``max_steps`` tried, the last ones taken whatever their error:
+        the bounded work a real-time loop needs (:mod:`hydropump_sim.fixed_step` checks a
+        step on the model first).
     """
 
     #: Whether this stepper steps the models a circuit's ``external`` components stand for
@@ -430,9 +461,15 @@ class Simulator:
 
     def __init__(self, plant: Params | Model, dt: float = 1.0e-3, model: str = 'fine',
                  config: IntegratorConfig = IntegratorConfig(),
-                 inputs: Mapping[str, float] | None = None, x0=None):
+                 inputs: Mapping[str, float] | None = None, x0=None,
+                 fixed_step: float = 0.0, max_steps: int = 16):
         if not (math.isfinite(dt) and dt > 0):
             raise InputError(f'dt = {dt!r}: expected a positive number of seconds')
+        #: The fixed step and the most Rodas4 steps an increment tries (0, 0: adaptive).
+        self.bounded = (fixed_step, bounded_steps(dt, fixed_step, max_steps)) if fixed_step \
+            else (0.0, 0)
+        #: The check of that step (a ``fixed_step.FixedStep``, set by who checked it).
+        self.fixed_step = None
         self.model = PumpModel(plant, model) if isinstance(plant, Params) else plant
         if not self.steps_external:
             refuse_external(self.model, 'Simulator')
@@ -509,9 +546,14 @@ class Simulator:
         t0 = self.steps * self.dt
         x = self.x.copy()[None]
         cfg = self.config
-        h, status = ig.advance(self._stepper, t0, t0 + self.dt, x, self.u, self.model.p[None],
-                               self._h, cfg.rtol, cfg.h_min, cfg.max_steps, self.stats, False,
-                               self.model.n_signals)
+        if self.bounded[1]:
+            h, status = self._h, ig.advance_bounded(
+                self._stepper, t0, t0 + self.dt, x, self.u, self.model.p[None],
+                self.bounded[0], cfg.rtol, self.bounded[1], self.stats, self.model.n_signals)
+        else:
+            h, status = ig.advance(self._stepper, t0, t0 + self.dt, x, self.u,
+                                   self.model.p[None], self._h, cfg.rtol, cfg.h_min,
+                                   cfg.max_steps, self.stats, False, self.model.n_signals)
         if status != ig.OK:
             raise IntegrationError(f'integration failed at t = {t0:.6g} s of simulation time: '
                                    f'{failure_text(status)}')

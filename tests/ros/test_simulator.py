@@ -237,3 +237,44 @@ def test_bad_params_file_exits_nonzero_with_the_library_message(tmp_path, ros_do
     proc = subprocess.run([executable('simulator'), '--ros-args', '--params-file', str(
         tmp_path / 'none.yaml')], capture_output=True, text=True, timeout=60)
     assert proc.returncode != 0 and 'Traceback' not in proc.stderr
+
+
+def test_a_fixed_step_bounds_the_work_of_every_increment(nodes, test_node):
+    """``solver.fixed_step:=0.0005``: every 1 ms increment at least two Rodas4 steps and at
+    most ``solver.max_steps`` (16) tried, the bound stated on /diagnostics; the plant still
+    follows the library's error-controlled run (the flow of a current step to the spool's
+    stop, eq. 11)."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from std_msgs.msg import Float64
+    nodes.start('simulator', '-p', 'solver.fixed_step:=0.0005', '-p',
+                'diagnostics_period:=0.2', '-p', 'real_time_factor:=0.0', '-p',
+                'pause_at:=2.0')
+    diag, flow = [], []
+    test_node.create_subscription(DiagnosticArray, '/diagnostics', diag.append, 10)
+    test_node.create_subscription(Float64, 'pump_flow', flow.append, 100)
+    pub = test_node.create_publisher(Float64, 'solenoid_current_cmd', 10)
+    wait_for_subscriber(test_node, 'solenoid_current_cmd')
+
+    def integrator():
+        return _diag_values(diag[-1])['simulator: integrator'] if diag else {}
+    # Paused at 2 s (pause_at): the counts are those of 2000 increments.
+    spin_until(test_node, lambda: pub.publish(Float64(data=0.6)) or
+               integrator().get('sim_time_s') == '2.000000', 60, '2 s of simulation')
+    d = integrator()
+    assert d['fixed_step_s'] == '0.0005' and d['max_steps_per_increment'] == '16'
+    tried = int(d['accepted_steps']) + int(d['rejected_steps'])
+    assert int(d['accepted_steps']) >= 4000 and tried <= 16 * 2000
+    assert int(d['model_evaluations_max']) > 16 * 7
+    p = load_params(PUMP_YAML)
+    ref = simulate(p, 2.0, current=0.6)
+    assert flow[-1].data == pytest.approx(ref['pump.Q_p'][-1], rel=1e-3)
+
+
+def test_a_fixed_step_that_does_not_divide_dt_is_one_error_line(ros_domain):
+    proc = subprocess.run([executable('simulator'), '--ros-args', '-p',
+                           'solver.fixed_step:=0.0003'], capture_output=True, text=True,
+                          timeout=60)
+    assert proc.returncode == 2 and 'Traceback' not in proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert lines == ['error: solver.fixed_step = 0.0003 s: not a whole fraction of dt = '
+                     '0.001 s (e.g. 0.000333333 or 0.00025 s)'], proc.stderr

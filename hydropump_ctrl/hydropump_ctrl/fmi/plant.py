@@ -137,6 +137,10 @@ class FmuSimulator:
     steps a model: ``t``, ``steps``, the inputs ``u``, :meth:`step`, :meth:`outputs`,
     :meth:`reset`."""
 
+    #: It steps as the FMU does: no simplified fidelity, no fixed step of the suite's.
+    fidelity = None
+    fixed_step = None
+
     def __init__(self, path, params, dt: float = 1.0e-3):
         info = read_fmu(path)
         check_plant(info)

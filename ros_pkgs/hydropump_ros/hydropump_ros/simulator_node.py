@@ -27,6 +27,7 @@ from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
 
 from hydropump_ctrl.fmi.plant import FMU_LOADS, FMU_PARAMETERS, ros_name
+from hydropump_sim import fixed_step
 from hydropump_sim.circuit import default_circuit_path, load_circuit
 from hydropump_sim.errors import HydropumpError
 from hydropump_sim.measure import FLOW_SIGNALS, JOINTS, model_topics, PRESSURE_SIGNALS
@@ -215,9 +216,9 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
         if cfg.circuit_file or cfg.circuit_sets:
             raise bridge.StartupError(['fmu_file: the FMU is the whole plant; give no '
                                        'circuit_file or circuit_sets with it'])
-        if cfg.fidelity != 'fine':
-            raise bridge.StartupError(['fidelity: an FMU plant runs as it is; give fidelity '
-                                       'fine (the default) with fmu_file'])
+        if cfg.fidelity != 'fine' or cfg.solver.fixed_step:
+            raise bridge.StartupError(['fidelity, solver.fixed_step: an FMU plant steps as it '
+                                       'is; give neither with fmu_file'])
         from hydropump_ctrl.fmi.plant import FmuSimulator
         try:
             plant = FmuSimulator(cfg.fmu_file, self.params, cfg.dt)
@@ -304,15 +305,20 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
                                   'pump (type pump or ls_pump)'])
         name, bandwidth = fidelity or self._fidelity
         if circuit.external():
-            if name != 'fine':
-                raise HydropumpError(['fidelity: a circuit with FMU loads runs fine only'])
+            if name != 'fine' or self.cfg.solver.fixed_step:
+                raise HydropumpError(['fidelity, solver.fixed_step: a circuit with FMU loads '
+                                      'runs fine, at adaptive steps'])
             # A user's FMU loads, stepped beside the circuit (co-simulation).
             from hydropump_ctrl.fmi.loads import CoupledSimulator
             return CoupledSimulator(circuit, self.cfg.dt)
         circuit, fid = with_fidelity(circuit, name, bandwidth,
                                      self._controller_bandwidth(circuit, name, bandwidth))
-        sim = Simulator(circuit, self.cfg.dt)
-        sim.fidelity = fid
+        step, most = self.cfg.solver.fixed_step, self.cfg.solver.max_steps
+        checked = fixed_step.check(circuit, self.cfg.dt, step, most) if step else None
+        sim = Simulator(circuit, self.cfg.dt, fixed_step=step, max_steps=most)
+        sim.fidelity, sim.fixed_step = fid, checked
+        if checked is not None:
+            self.get_logger().info(checked.text())
         return sim
 
     @staticmethod
@@ -583,7 +589,7 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
                                             for k, v in values.items()])
         ok, warn, error = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
         bad = stats['nan_commands'] or stats['clamped_commands'] or d['watchdog']
-        fid = d['fidelity']
+        fid, fixed = d['fidelity'], self.runner.sim.fixed_step
         pending = self._fidelity[0] != (fid.name if fid is not None else 'fine')
         arr = DiagnosticArray(status=[
             status('plant', warn if any(flags.values()) else ok,
@@ -602,6 +608,10 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
                     'step_cost_max_s': f'{d["step_cost_max"]:.6f}',
                     'step_period_s': f'{d["step_budget"]:.6f}',
                     'step_overruns': d['overruns'],
+                    # A fixed step: the bound of an increment's work.
+                    'fixed_step_s': f'{fixed.step:.6g}' if fixed else '0',
+                    'max_steps_per_increment': fixed.max_steps if fixed else '',
+                    'model_evaluations_max': fixed.evaluations if fixed else '',
                     'lock_step': self.cfg.lock_step}),
             # Which model runs, and how far the simplified one may be from the fine one.
             status('model', ok, (fid.text() if fid is not None else 'fine') + (
