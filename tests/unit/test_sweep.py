@@ -55,6 +55,21 @@ def test_tau_moves_as_one_over_mu_a(client, tmp_path):
     assert tau[1] == pytest.approx(0.100, abs=0.003)   # the plant's design point (D2)
 
 
+def test_the_simplified_fidelity_runs_eq_10_and_keeps_eq_14(client, tmp_path):
+    # Section IV on the pump at 20 Hz: its spool and plate (about 2 ms) made static, eq. 10;
+    # the actuator's lag of eq. 14 is kept, so tau still goes as 1/mu_a.
+    sw = spec(experiment={**EXPERIMENT, 'fidelity': 'simplified'},
+              grid={'relative': True, 'parameters': {'actuator.mu_a': [0.9, 1.0, 1.1]}})
+    assert sw.experiment.model == 'simplified_Kc'
+    assert 'pump made static; error bound' in sw.experiment.fidelity
+    run_sweep(sw, tmp_path, client=client, progress=False, report=False)
+    cols = read_table(tmp_path / 'runs.parquet')
+    mu, tau = cols['actuator.mu_a'], cols['fopdt_tau']
+    for k in (0, 2):
+        assert tau[k] / tau[1] == pytest.approx(mu[1] / mu[k], rel=0.02)
+    assert tau[1] == pytest.approx(0.100, abs=0.003)
+
+
 def test_tornado_names_mu_a_for_tau_and_not_the_line_volume(client, tmp_path):
     # eq. 14 has no V_l: the line pole (~3.6 ms) is far faster than tau (100 ms).
     sw = spec(latin_hypercube={'n': 12, 'seed': 3, 'relative': True,
@@ -174,6 +189,9 @@ BAD = {
               'sobol.n = 1073741824: 1.07e+09 runs'),
     'lhs': ({'latin_hypercube': {'n': 10 ** 9, 'bounds': {'actuator.mu_a': [1.0e-4, 2.0e-4]}}},
             'latin_hypercube.n = 1000000000: 1e+09 runs'),
+    'fidelity': ({'experiment': {**EXPERIMENT, 'fidelity': 'simplified', 'model': 'fine'},
+                  'grid': {'parameters': {'actuator.mu_a': [1.0e-6]}}},
+                 'experiment: give model or fidelity, not both'),
 }
 
 

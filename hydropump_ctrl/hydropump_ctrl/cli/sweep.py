@@ -68,6 +68,8 @@ def cmd_sweep(args) -> int:
                          'there, and the same command resumes') from None
     print(f'sweep: {sweep.n_runs} runs, {res.executed} executed now ({res.where}), '
           f'{res.reused} from earlier, {res.failed} failed', file=sys.stderr)
+    if sweep.experiment.fidelity:
+        print(f'fidelity: {sweep.experiment.fidelity}', file=sys.stderr)
     print(res.table)
     if res.report:
         print(res.report)

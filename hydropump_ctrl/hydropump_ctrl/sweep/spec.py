@@ -58,7 +58,7 @@ class SweepError(HydropumpError, ValueError):
 
 METHODS = ('grid', 'latin_hypercube', 'distributions', 'sobol', 'morris')
 _TOP = {'params', 'experiment', 'outputs', 'keep_relations', *METHODS}
-_EXPERIMENT = {'duration', 'current', 'scenario', 'model', 'dt_out'}
+_EXPERIMENT = {'duration', 'current', 'scenario', 'model', 'dt_out', 'fidelity', 'bandwidth'}
 OUTPUT_KINDS = ('fopdt', 'peak', 'final', 'step')
 # Columns each output adds to the table, and their units.
 FOPDT_COLUMNS = {'fopdt_G0': '%', 'fopdt_tau': 's', 'fopdt_td': 's'}
@@ -90,6 +90,8 @@ class Experiment:
     inputs: dict = field(default_factory=dict)
     #: Times [s] at which the current steps (the step metrics use the first).
     step_times: tuple = ()
+    #: What ``fidelity: simplified`` made of the model (its error bound), else empty.
+    fidelity: str = ''
 
 
 @dataclass(frozen=True)
@@ -246,6 +248,7 @@ def _experiment(doc: Any, base: Path, plant: Params | None, errors: list[str]):
     if 'dt_out' in doc:
         dt_out = check_number(doc['dt_out'], 'experiment.dt_out', errors, sign='> 0') or 1.0e-3
     nominal = plant or scen_plant
+    model, fidelity = _fidelity(doc, model, nominal, errors)
     if 'current' in doc and duration and nominal is not None:
         fn, step_times = _current(doc['current'], duration, nominal, errors)
         if fn is not None:
@@ -255,7 +258,37 @@ def _experiment(doc: Any, base: Path, plant: Params | None, errors: list[str]):
     if duration is None:
         return None, scen_plant
     return Experiment(duration=duration, model=model, dt_out=dt_out, inputs=inputs,
-                      step_times=step_times), scen_plant
+                      step_times=step_times, fidelity=fidelity), scen_plant
+
+
+def _fidelity(doc: Mapping, model: str, nominal: Params | None, errors: list[str]
+              ) -> tuple[str, str]:
+    """``experiment.fidelity`` (and ``bandwidth`` [Hz]): the model every run simulates,
+    section IV's simplified one where its modes lie beyond the bandwidth
+    (:func:`hydropump_sim.reduction.with_fidelity` on the nominal plant), and what it is."""
+    if 'fidelity' not in doc:
+        if 'bandwidth' in doc:
+            errors.append('experiment.bandwidth: goes with fidelity: simplified')
+        return model, ''
+    from hydropump_sim.reduction import FIDELITIES, with_fidelity
+    from hydropump_sim.errors import InputError
+    from hydropump_sim.plant_model import PumpModel
+    fidelity = doc['fidelity']
+    if 'model' in doc:
+        errors.append('experiment: give model or fidelity, not both')
+    elif fidelity not in FIDELITIES:
+        errors.append(f'experiment.fidelity = {fidelity!r}: use {" or ".join(FIDELITIES)}')
+    elif fidelity == 'simplified' and nominal is not None:
+        bandwidth = check_number(doc.get('bandwidth', 0.0), 'experiment.bandwidth', errors,
+                                 sign='>= 0')
+        if bandwidth is not None:
+            try:
+                simple, fid = with_fidelity(PumpModel(nominal), 'simplified', bandwidth)
+            except InputError as exc:
+                errors.append(f'experiment.fidelity: {exc}')
+            else:
+                return simple.model, fid.text()
+    return model, ''
 
 
 # ---- samples ------------------------------------------------------------------------------
