@@ -270,9 +270,9 @@ def _fidelity(doc: Mapping, model: str, nominal: Params | None, errors: list[str
         if 'bandwidth' in doc:
             errors.append('experiment.bandwidth: goes with fidelity: simplified')
         return model, ''
-    from hydropump_sim.reduction import FIDELITIES, with_fidelity
     from hydropump_sim.errors import InputError
     from hydropump_sim.plant_model import PumpModel
+    from hydropump_sim.reduction import FIDELITIES, with_fidelity
     fidelity = doc['fidelity']
     if 'model' in doc:
         errors.append('experiment: give model or fidelity, not both')
