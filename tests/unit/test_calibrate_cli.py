@@ -64,6 +64,11 @@ def _mine(folder, name):
      f'--workers 1000: a local cluster of at most {2 * cores()} workers here'),
     (lambda tmp, bag: ['--in-process', '--scheduler', 'tcp://127.0.0.1:9'], 'choose one'),
     (lambda tmp, bag: ['--fleet', str(tmp)], 'not both'),
+    (lambda tmp, bag: ['--bandwidth', '5'], '--bandwidth goes with --fidelity simplified'),
+    (lambda tmp, bag: ['--fidelity', 'simplified', '--fmu', str(tmp / 'pump.fmu')],
+     'goes with the bags of one pump'),
+    (lambda tmp, bag: ['--fidelity', 'simplified', '--free', 'spool.m_c'],
+     'spool.m_c: not in the simplified pump (eq. 10 makes the spool and plate static)'),
     # A report folder holding the user's own report.md: refused before any calibration.
     (lambda tmp, bag: ['--report', str(_mine(tmp, 'report.md'))],
      'exists and is not a calibration report this suite wrote: not replaced'),

@@ -47,6 +47,7 @@ from .options import (
     add_where_options,
     output_file,
     plant_file,
+    positive_float,
     protect_output,
     run_dir,
     UsageError,
@@ -137,6 +138,13 @@ def register(sub) -> None:
     c.add_argument('--no-multistart', action='store_true',
                    help='one start only (by default two more when the first does not reach '
                         'the noise level)')
+    c.add_argument('--fidelity', choices=('fine', 'simplified'), default='fine',
+                   help="the model fitted: the fine pump, or section IV's simplified one (eq. "
+                   '10 where the spool and plate lie beyond the bandwidth; its error bound '
+                   'in the report)')
+    c.add_argument('--bandwidth', type=positive_float('Hz', 1.0e4),
+                   help="control bandwidth [Hz] of --fidelity simplified (default section "
+                   "IV's 20 Hz)")
     c.add_argument('--fmu', metavar='MODEL.fmu',
                    help="fit the real parameters of this FMI 2.0 or 3.0 FMU instead "
                         "of the suite's model: its input current takes the recorded "
@@ -233,6 +241,11 @@ def cmd_calibrate(args) -> int:
                                          ('--workers', args.workers)) if v)
         raise UsageError(f'--fmu with {given}: one FMU is calibrated in this process (a '
                          'fleet of them, --fleet, goes to a cluster)')
+    if args.bandwidth is not None and args.fidelity == 'fine':
+        raise UsageError('--bandwidth goes with --fidelity simplified')
+    if args.fidelity != 'fine' and (args.fmu or args.fleet):
+        raise UsageError(f'--fidelity {args.fidelity} goes with the bags of one pump (an FMU '
+                         'is fitted as it is; a fleet at the fine fidelity)')
     if args.fleet:
         return _fleet(args)
     if not args.bags:
@@ -292,11 +305,13 @@ def _single(args) -> int:
     try:
         cal = calibrate(recs, base, args.free, offsets=args.offset,
                         fit_delays=not args.no_delays, signals=args.signals, priors=priors,
-                        multistart=not args.no_multistart, progress=show, executor=ex)
+                        multistart=not args.no_multistart, progress=show, executor=ex,
+                        fidelity=args.fidelity, bandwidth=args.bandwidth or 0.0)
     finally:
         if ex is not None:
             ex.close()
-    suggest(cal, show)
+    if args.fidelity == 'fine':     # the next experiments are designed on the fine model
+        suggest(cal, show)
     if show:
         print(file=sys.stderr)
     cal.provenance = collect(inputs)
@@ -307,7 +322,8 @@ def _single(args) -> int:
         raise CalibrationError(f'{_not_improved(cal)}: no params file written; see '
                                f'{report}/report.md')
     own, bench = _plant_only(cal, plant, args.profile)
-    write_params(cal, out, [f'start: {plant}', *bench], own)
+    fitted = [] if args.fidelity == 'fine' else [f'fitted at the fidelity {cal.fidelity}']
+    write_params(cal, out, [f'start: {plant}', *bench, *fitted], own)
     write_calibration_report(cal, report, plots=not args.no_plots)
     return _print_calibration(args, cal, recs, out, report)
 

@@ -15,8 +15,10 @@ from typing import Any
 
 import numpy as np
 
-from hydropump_sim.errors import HydropumpError
+from hydropump_sim.errors import HydropumpError, InputError
 from hydropump_sim.params import Params
+from hydropump_sim.plant_model import PumpModel
+from hydropump_sim.reduction import Fidelity, with_fidelity
 
 from ..fit import blas_single_threaded
 from .data import (
@@ -120,6 +122,7 @@ class Calibration:
     missing: list[dict] = field(default_factory=list)
     timing: str = ''                          # the bench's timing convention, in words
     provenance: dict | None = None            # where it came from (..provenance.collect)
+    fidelity: str = 'fine'                    # the model fitted (reduction.Fidelity.text)
     predictions: list[dict[str, np.ndarray]] = field(default_factory=list, repr=False)
     predictions_before: list[dict[str, np.ndarray]] = field(default_factory=list, repr=False)
     experiments: list[Experiment] = field(default_factory=list, repr=False)
@@ -144,7 +147,8 @@ class Calibration:
             'misfit': self.misfit,
             'delays_s': self.delays, 'offsets': self.offsets, 'noise_sigma': self.sigma,
             'flags': self.flags, 'notes': self.notes, 'bags': self.sources,
-            'method': self.method, 'n_simulations': self.n_simulations,
+            'method': self.method, 'fidelity': self.fidelity,
+            'n_simulations': self.n_simulations,
             'wall_time_s': self.wall_time, 'cost': self.cost, 'cost_start': _num(self.cost_start),
             'missing_effects': [{k: v for k, v in c.items() if k != 'signals'}
                                 | {'noise_ratio': {s: list(v) for s, v in c['signals'].items()}}
@@ -271,12 +275,39 @@ def prepare(recordings, base: Params, free: Sequence[str], signals, offsets: Seq
 
 
 @blas_single_threaded
+def pump_fidelity(base: Params, fidelity: str, bandwidth: float, free: Sequence[str]
+                  ) -> tuple[str, Fidelity]:
+    """The pump's form at ``fidelity`` (see :func:`calibrate`), or a
+    :class:`CalibrationError` saying why not: a free parameter the simplified pump does
+    without (the spool's and plate's motion, which eq. 10 makes static), found as one whose
+    change moves none of its derivatives and signals off rest."""
+    try:
+        simple, fid = with_fidelity(PumpModel(base), fidelity, bandwidth)
+    except InputError as exc:
+        raise CalibrationError([str(exc)]) from None
+    if simple.model != 'fine':
+        x = simple.start_states(simple.u0)[0] * (1.0 + 1e-3) + 1e-9
+        at = simple.rhs(0.0, x, simple.u0)
+        gone = []
+        for name in free:
+            other = PumpModel(params_with(base, [name], [1.1 * base.flat()[name]]),
+                              simple.model)
+            if all(np.array_equal(a, b) for a, b in zip(at, other.rhs(0.0, x, other.u0))):
+                gone.append(name)
+        if gone:
+            raise CalibrationError([
+                f'{", ".join(gone)}: not in the simplified pump (eq. 10 makes the spool and '
+                'plate static); free it at --fidelity fine'])
+    return simple.model, fid
+
+
 def calibrate(recordings: Sequence, base: Params, free: Sequence[str], *,
               offsets: Sequence[str] = (), fit_delays: bool = True, per_bag: bool = False,
               signals: Sequence[str] | None = None, priors: Sequence[Prior] = (),
               rtol: float = 1e-5, max_nfev: int = 30, multistart: bool = True,
               closed_form_start: bool = True, executor=None, workers: int | None = None,
-              progress: Callable[[str], None] | None = None) -> Calibration:
+              progress: Callable[[str], None] | None = None, fidelity: str = 'fine',
+              bandwidth: float = 0.0) -> Calibration:
     """Fit the free plant parameters to ``recordings`` (see the package).
 
     Parameters
@@ -301,6 +332,11 @@ def calibrate(recordings: Sequence, base: Params, free: Sequence[str], *,
     executor : hydropump_ctrl.batch.Executor, optional
         Where the simulations run (a Dask cluster: each a task); default threads of this
         process (:data:`.engine.THREADS`, or ``workers`` of them).
+    fidelity, bandwidth : str, float
+        The model fitted: the fine pump, or section IV's simplified one at ``bandwidth``
+        [Hz] (eq. 10 where the spool and plate lie beyond it;
+        :func:`hydropump_sim.reduction.with_fidelity`), whose error bound the result's
+        ``fidelity`` states. Its free parameters must be ones it keeps.
 
     Raises
     ------
@@ -313,7 +349,9 @@ def calibrate(recordings: Sequence, base: Params, free: Sequence[str], *,
     exps = prepare(recordings, base, free, signals, offsets, priors)
     coords = Coordinates.of(base, free)
     theta0 = np.array([float(base.flat()[n]) for n in free])
-    engine = Engine(base, free, exps, rtol=rtol, executor=executor, workers=workers)
+    form, fid = pump_fidelity(base, fidelity, bandwidth, free)
+    engine = Engine(base, free, exps, rtol=rtol, executor=executor, workers=workers,
+                    model=form)
     prob = Problem(engine, coords, offsets=offsets, fit_delays=fit_delays, per_bag=per_bag,
                    priors=priors, progress=progress)
     try:
@@ -323,6 +361,7 @@ def calibrate(recordings: Sequence, base: Params, free: Sequence[str], *,
         model_se = _considered(prob, found.z, found.Jr, params, free)
         cal = result_of(prob, found, params, base, tied_values(params.flat(), free),
                         recordings, t_wall, model_se)
+        cal.fidelity = fid.text()
         if any(m['ratio'] > MISFIT_RATIO for per in cal.misfit.values() for m in per.values()):
             try:
                 cal.missing = missing(prob, found.z, cal.params, free, _recorded(exps))

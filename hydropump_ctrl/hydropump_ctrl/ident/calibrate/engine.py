@@ -70,26 +70,28 @@ def params_with(base: Params, names: Sequence[str], theta: Sequence[float]) -> P
     return params_from_dict(flat)
 
 
-def _initial_state(params: Params, exp: Experiment):
+def _initial_state(params: Params, exp: Experiment, model: str):
     if exp.start_signal is None:
         return None   # the equilibrium at the first inputs
     return equilibrium(params, exp.initial_current(params),
                        load_pressure=None if exp.load_pressure is None
-                       else float(exp.load_pressure[0])).x
+                       else float(exp.load_pressure[0]), model=model).x
 
 
-def simulate_runs(plist: Sequence[Params], exp: Experiment, rtol: float | None = None
-                  ) -> list[dict[str, np.ndarray]]:
-    """The fine model's true signals (SI, gauge) for each parameter set of ``plist``, the
-    first one's steps shared (see the module), on the experiment's model grid: ``fine``
-    output steps per recorded sample (the recorded sample ``k`` is row ``k fine``), the
-    inputs held over each recorded sample."""
+def simulate_runs(plist: Sequence[Params], exp: Experiment, rtol: float | None = None,
+                  model: str = 'fine') -> list[dict[str, np.ndarray]]:
+    """The true signals (SI, gauge) of the pump in the form ``model`` (the fine one, or
+    eq. 10 at the simplified fidelity) for each parameter set of ``plist``, the first one's
+    steps shared (see the module), on the experiment's model grid: ``fine`` output steps
+    per recorded sample (the recorded sample ``k`` is row ``k fine``), the inputs held over
+    each recorded sample."""
     m = exp.fine
     n = (exp.n - 1) * m + 1
     load = None if exp.load_pressure is None else np.repeat(exp.load_pressure, m)
     runs = simulate_copies(plist, (exp.n - 1) * exp.dt, np.repeat(exp.current, m),
                            load_pressure=load, dt_out=exp.dt_model, dt_max=exp.dt_model,
-                           rtol=rtol, t0=exp.t0, x0=[_initial_state(p, exp) for p in plist])
+                           rtol=rtol, t0=exp.t0, model=model,
+                           x0=[_initial_state(p, exp, model) for p in plist])
     out = []
     for params, res in zip(plist, runs):
         y = res.y[:n]
@@ -99,18 +101,18 @@ def simulate_runs(plist: Sequence[Params], exp: Experiment, rtol: float | None =
         changed = np.flatnonzero(np.any(res.u[1:n] != res.u[:n - 1], axis=1)) + 1
         if changed.size:
             y = y.copy()
-            p = pack(params)
+            p = pack(params, model)
             for k in changed:
-                o = outputs(float(res.t[k]), res.x[k], res.u[k - 1], params, p=p)
+                o = outputs(float(res.t[k]), res.x[k], res.u[k - 1], params, model, p=p)
                 y[k] = [o[name] for name in OUTPUTS]
         out.append({s: y[:, _OUT_INDEX[s]] for s in exp.measured})
     return out
 
 
-def simulate_experiment(params: Params, exp: Experiment, rtol: float | None = None
-                        ) -> dict[str, np.ndarray]:
-    """The fine model's true signals on the experiment's recorded grid (SI, gauge)."""
-    return {s: y[::exp.fine] for s, y in simulate_runs([params], exp, rtol)[0].items()}
+def simulate_experiment(params: Params, exp: Experiment, rtol: float | None = None,
+                        model: str = 'fine') -> dict[str, np.ndarray]:
+    """The true signals on the experiment's recorded grid (SI, gauge)."""
+    return {s: y[::exp.fine] for s, y in simulate_runs([params], exp, rtol, model)[0].items()}
 
 
 class Work:
@@ -118,8 +120,9 @@ class Work:
     the validated parameter sets built from them, kept where the jobs run."""
 
     def __init__(self, base: Params, names: Sequence[str], exps: Sequence[Experiment],
-                 rtol: float):
+                 rtol: float, model: str = 'fine'):
         self.base, self.names, self.exps, self.rtol = base, tuple(names), list(exps), rtol
+        self.model = model
         self.params: dict[bytes, Params] = {}
 
     def __getstate__(self):
@@ -142,7 +145,7 @@ class Work:
 def run_job(job, work: Work):
     """One experiment for several parameter vectors, the first one's steps shared."""
     e, thetas = job
-    return simulate_runs([work.plant(t) for t in thetas], work.exps[e], work.rtol)
+    return simulate_runs([work.plant(t) for t in thetas], work.exps[e], work.rtol, work.model)
 
 
 class Engine:
@@ -161,6 +164,8 @@ class Engine:
         Where the jobs run (:mod:`hydropump_ctrl.batch`; the caller closes it). Default:
         :data:`THREADS` threads of this process, or with ``workers`` that many (1: a plain
         loop).
+    model : str
+        The pump's form (``fine``; ``simplified_Kc``, eq. 10, at the simplified fidelity).
     """
 
     #: The perturbation of a sensitivity, in the search coordinates: a relative change of
@@ -171,16 +176,16 @@ class Engine:
 
     def __init__(self, base: Params, names: Sequence[str], exps: Sequence[Experiment], *,
                  rtol: float = 1e-5, executor: Executor | None = None,
-                 workers: int | None = None):
+                 workers: int | None = None, model: str = 'fine'):
         self.base, self.names, self.exps = base, tuple(names), list(exps)
-        self.rtol = rtol
+        self.rtol, self.model = rtol, model
         self._own = executor is None
         self.executor = executor if executor is not None else \
             InProcess(THREADS if workers is None else workers)
         self.workers = self.executor.workers
         self.n_trajectories = 0       # simulated runs, a copy counted as one
         self.n_loops = 0              # compiled loops (a nominal run with its copies is one)
-        self._work = Work(base, names, exps, rtol)
+        self._work = Work(base, names, exps, rtol, model)
         self._shared = None
         self._cache: dict[bytes, list[dict[str, np.ndarray]]] = {}
 

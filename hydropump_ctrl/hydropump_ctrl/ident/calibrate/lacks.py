@@ -82,7 +82,7 @@ def columns(prob: Problem, params: Params, names: Sequence[str]) -> np.ndarray:
 
 def _columns(prob: Problem, params: Params, names: Sequence[str]) -> np.ndarray:
     coords = Coordinates.of(params, names)
-    engine = Engine(params, names, prob.exps, rtol=prob.engine.rtol,
+    engine = Engine(params, names, prob.exps, rtol=prob.engine.rtol, model=prob.engine.model,
                     executor=prob.engine.executor)
     try:
         other = Problem(engine, coords, offsets=[s for _, s in prob.with_offset],
@@ -116,7 +116,7 @@ def _profile(prob: Problem, Q: np.ndarray, r: np.ndarray, params: Params, name: 
     parameters and delays moved with it to first order; None if no trial simulates."""
     lo, hi = spec_map(Params)[name].range
     value = float(params.flat()[name])
-    engine = Engine(params, (name,), prob.exps, rtol=prob.engine.rtol,
+    engine = Engine(params, (name,), prob.exps, rtol=prob.engine.rtol, model=prob.engine.model,
                     executor=prob.engine.executor)
     tried: dict[float, tuple[float, np.ndarray]] = {}
 

@@ -273,6 +273,7 @@ def write_calibration_report(cal, out: Path, *, plots: bool = True) -> Path:
                      p.on_bound or '', p.prior or ''])
     md = ['# Calibration', '', f'Recordings: {", ".join(cal.sources)}', '',
           f'Method: {cal.method}; {cal.n_simulations} simulated runs, {cal.wall_time:.1f} s.',
+          *([] if cal.fidelity == 'fine' else ['', f'Model fitted: {cal.fidelity}.']),
           '', '## Parameters', '',
           _table(['parameter', 'start', 'calibrated', 'standard error', '95 % interval',
                   'well determined', 'bound', 'prior'], rows), '']
