@@ -16,15 +16,18 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .errors import InputError
-from .linear import linearize, LinearModel, modal_analysis, Mode
 from .metrics import moving_average
 from .simulate import simulate
 from .steady import equilibrium
 from .system import Model, SteadyState
+
+if TYPE_CHECKING:
+    from .linear import LinearModel, Mode
 
 #: The control bandwidth of section IV: a controller averaging over T [s].
 T_CONTROL = 0.05
@@ -67,6 +70,7 @@ class ComponentCheck:
 
 def component_modes(model: Model, lin: LinearModel) -> dict[str, list[Mode]]:
     """The modes each component dominates (by participation), slowest first."""
+    from .linear import modal_analysis
     out: dict[str, list[Mode]] = {}
     for m in modal_analysis(lin, n_dominant=1):
         out.setdefault(component_of(model, m.dominant[0]), []).append(m)
@@ -129,6 +133,9 @@ def singular_perturbation(model: Model, eq: SteadyState | None = None,
     always measured. Returns the checks (slowest first) and ``{'components', 'sets',
     'error'}`` of the simplified model (``sets``: the values that make it, for a circuit).
     """
+    # The linear analysis (python-control) is imported where it runs: it takes a second,
+    # which the simulator node, reading FIDELITIES at every start, would pay for nothing.
+    from .linear import linearize, modal_analysis
     eq = equilibrium(model) if eq is None else eq
     lin = linearize(model, eq, inputs=[], outputs=[])
     modes = modal_analysis(lin, n_dominant=1)
@@ -234,6 +241,7 @@ def line_capacitance(model: Model, eq: SteadyState, node: str) -> float:
     ``V/beta`` weighted by how far its pressure follows the node's at rest (the first
     moment of the response to a flow step). It is ``V_l/beta`` for the paper's plant and
     takes the volumes behind open passages along for a model."""
+    from .linear import linearize
     lin = linearize(model, eq, 'pos', inputs=[], outputs=[])
     k = lin.states.index(f'node:{node}')
     b = np.zeros(len(lin.states))

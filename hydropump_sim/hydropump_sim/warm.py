@@ -4,7 +4,9 @@ start would otherwise wait a minute for numba).
 
 Every structure a shipped configuration runs is compiled: each circuit of
 ``config/circuits``, and Fig. 1 with post-compensated sections and with the hydromechanical
-compensator on its pump, under either kind. Two worker processes share the work.
+compensator on its pump, under either kind, ``three_loads`` under that compensator, the
+section IV simplified form of each (``fidelity: simplified``), and the bounded step of
+``solver.fixed_step``. Two worker processes share the work.
 """
 
 from __future__ import annotations
@@ -21,20 +23,24 @@ def _plant() -> str:
     from .simulate import Simulator
     p = load_params(default_params_path())
     simulate(p, 0.01)
-    simulate(p, 0.01, model='simplified')
+    for model in ('simplified', 'simplified_Kc'):
+        simulate(p, 0.01, model=model)
     sim = Simulator(p)
     sim.step()
+    Simulator(p, fixed_step=sim.dt).step()     # the bounded step, one for every model
     return 'plant'
 
 
 def _circuit(path: str, sets: dict) -> str:
     from .circuit import load_circuit
+    from .reduction import with_fidelity
     from .simulate import simulate, Simulator
     c = load_circuit(path, sets)
     sim = Simulator(c)
     sim.step()
     simulate(c, 0.01, x0=sim.x)
     c.jacobian(0.0, sim.x, sim.u)
+    with_fidelity(c, 'simplified')      # its simplified form, run once there
     return f'{Path(path).name} {sets or ""}'.strip()
 
 
@@ -50,6 +56,9 @@ def jobs(config: Path) -> list[tuple]:
             out.append((_circuit, str(fig1), {'boom.compensator': kind,
                                               'motor.compensator': kind,
                                               'pump.type': 'ls_pump', 'pump.ls.margin': 2.5e6}))
+    three = config / 'circuits' / 'three_loads.yaml'
+    if three.is_file():
+        out.append((_circuit, str(three), {'pump.type': 'ls_pump', 'pump.ls.margin': 2.5e6}))
     return out
 
 
