@@ -24,6 +24,7 @@ import time
 import numpy as np
 
 from .errors import InputError
+from .reduction import staggered
 from .simulate import bounded_steps, IntegrationError, simulate, Simulator, steps_of
 from .steady import equilibrium
 from .system import Model
@@ -59,21 +60,12 @@ class FixedStep:
 
 
 def switching_inputs(model: Model, duration: float) -> dict:
-    """Every main input thrown from where it holds to the far end of its range (the pump's
-    current to the end of its range nearer the other) at staggered instants in the first
-    half of ``duration``, and back at the same instants of the second half: valves slammed
-    open and shut, the spool at its stop, what a real-time step must survive."""
-    out = {}
-    names = model.main_inputs()
-    for j, name in enumerate(names):
-        k = model.input_index(name)
-        lo, hi = model.input_ranges[k]
-        u0 = model.u0[k]
-        u1 = hi if hi - u0 >= u0 - lo else lo
-        on = 0.5 * duration * (j + 1) / (len(names) + 1)
-        out[name] = (lambda t, a=u0, b=u1, t1=on, t2=on + 0.5 * duration: np.where(
-            (np.asarray(t) >= t1) & (np.asarray(t) < t2), b, a))
-    return out
+    """Every main input (the pump's current too) thrown from where it holds to the far end
+    of its range at staggered instants in the first half of ``duration``, and back at the
+    same instants of the second half: valves slammed open and shut, the spool at its stop,
+    what a real-time step must survive."""
+    return staggered(model, duration, lambda name, u0, lo, hi:
+                     hi if hi - u0 >= u0 - lo else lo, back=True)
 
 
 def _trial(model: Model, dt: float, step: float, max_steps: int, U: np.ndarray,
@@ -104,31 +96,59 @@ def _trial(model: Model, dt: float, step: float, max_steps: int, U: np.ndarray,
     return worst[0], worst[1], costs
 
 
+def _test_run(model: Model, dt: float) -> tuple:
+    """The switching test run, held per increment ``dt``, and its error-controlled run:
+    ``(x0, U, ref, names)``."""
+    eq = equilibrium(model)
+    ins = switching_inputs(model, DURATION)
+    U, _ = model.input_table(np.arange(int(round(DURATION / dt))) * dt, ins, dt)
+    ref = simulate(model, DURATION, ins, x0=eq.x, dt_out=dt, dt_max=dt)
+    return eq.x, U, ref, model.judged_signals()
+
+
+def _checked(model: Model, dt: float, step: float, max_steps: int, run: tuple) -> FixedStep:
+    """``step`` at ``max_steps`` on the test run ``run`` (:func:`_test_run`), whatever its
+    error."""
+    x0, U, ref, names = run
+    e, worst, costs = _trial(model, dt, step, max_steps, U, x0, ref, names)
+    colors = int(np.max(model.structure()['colors'])) + 1
+    return FixedStep(step, max_steps, max_steps * (colors + 7), e, worst,
+                     float(np.percentile(costs, 99)), float(np.max(costs)))
+
+
+def _largest(model: Model, dt: float, max_steps: int, run: tuple, first: int
+             ) -> FixedStep | None:
+    """The largest step ``dt/n`` (``n`` from ``first`` up to ``max_steps``) that holds."""
+    for n in range(first, max_steps + 1):
+        held = _checked(model, dt, dt / n, max_steps, run)
+        if held.error <= TOLERANCE:
+            return held
+    return None
+
+
+def largest_step(model: Model, dt: float, max_steps: int = 16) -> FixedStep | None:
+    """The largest step of the form ``dt/n`` that holds on ``model`` at ``max_steps``
+    (checked as :func:`check` checks one), or ``None``."""
+    return _largest(model, dt, max_steps, _test_run(model, dt), 1)
+
+
 def check(model: Model, dt: float, step: float, max_steps: int = 16) -> FixedStep:
     """``step`` [s] with at most ``max_steps`` an increment checked on ``model`` stepped
     every ``dt`` (see the module), or an :class:`InputError` naming the largest step of the
     form ``dt/n`` that holds at that bound (``n`` up to ``max_steps``)."""
     bounded_steps(dt, step, max_steps)
-    n0 = steps_of(dt, step)
-    eq = equilibrium(model)
-    ins = switching_inputs(model, DURATION)
-    n_inc = int(round(DURATION / dt))
-    U, _ = model.input_table(np.arange(n_inc) * dt, ins, dt)
-    ref = simulate(model, DURATION, ins, x0=eq.x, dt_out=dt, dt_max=dt)
-    names = model.judged_signals()
-    e, worst, costs = _trial(model, dt, step, max_steps, U, eq.x, ref, names)
+    run = _test_run(model, dt)
+    checked = _checked(model, dt, step, max_steps, run)
+    e = checked.error
     if e > TOLERANCE:
-        held = next((dt / n for n in range(n0 + 1, max_steps + 1) if _trial(
-            model, dt, dt / n, max_steps, U, eq.x, ref, names)[0] <= TOLERANCE), None)
-        what = 'diverges' if not e < 10.0 else f'leaves it by {e:.1%} ({worst})'
+        held = _largest(model, dt, max_steps, run, steps_of(dt, step) + 1)
+        what = 'diverges' if not e < 10.0 else f'leaves it by {e:.1%} ({checked.worst})'
         raise InputError(
             f'solver.fixed_step = {step:g} s (max_steps {max_steps}): too large for the '
             f'fastest dynamics {model.name} keeps: on its test run it {what} against the '
             'error-controlled run; '
-            + (f'the largest step that holds within {TOLERANCE:.0%} is {held:.4g} s '
-               f'(dt/{round(dt / held)})' if held is not None else
+            + (f'the largest step that holds within {TOLERANCE:.0%} is {held.step:.4g} s '
+               f'(dt/{round(dt / held.step)})' if held is not None else
                f'no step down to dt/{max_steps} holds within {TOLERANCE:.0%}: raise '
                'solver.max_steps, or use adaptive steps (fixed_step 0)'))
-    colors = int(np.max(model.structure()['colors'])) + 1
-    return FixedStep(step, max_steps, max_steps * (colors + 7), e, worst,
-                     float(np.percentile(costs, 99)), float(np.max(costs)))
+    return checked

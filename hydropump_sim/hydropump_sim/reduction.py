@@ -77,21 +77,33 @@ def component_modes(model: Model, lin: LinearModel) -> dict[str, list[Mode]]:
     return out
 
 
-def test_inputs(model: Model, duration: float) -> dict:
-    """The test run of the check: every load's command and the pump's current stepped by a
-    tenth of their range at staggered instants, from the circuit's steady state."""
+def staggered(model: Model, duration: float, target, back: bool = False) -> dict:
+    """Each main input moved from where it holds to ``target(name, u0, lo, hi)`` at
+    staggered instants over ``duration`` (with ``back``: over its first half, and back at
+    the same instants of the second), as functions of time by name."""
     out = {}
     names = model.main_inputs()
+    span = 0.5 * duration if back else duration
     for j, name in enumerate(names):
         k = model.input_index(name)
         lo, hi = model.input_ranges[k]
         u0 = model.u0[k]
+        on = span * (j + 1) / (len(names) + 1)
+        off = on + span if back else math.inf
+        u1 = target(name, u0, lo, hi)
+        out[name] = (lambda t, a=u0, b=u1, t1=on, t2=off: np.where(
+            (np.asarray(t) >= t1) & (np.asarray(t) < t2), b, a))
+    return out
+
+
+def test_inputs(model: Model, duration: float) -> dict:
+    """The test run of the check: every load's command and the pump's current stepped by a
+    tenth of their range at staggered instants, from the circuit's steady state."""
+    def tenth(name, u0, lo, hi):
         span = 0.2 * model.plant_params().spool.I_max if name.endswith('current') \
             else 0.1 * (hi - lo)
-        u1 = u0 + span if u0 + span <= hi else u0 - span
-        t_step = duration * (j + 1) / (len(names) + 1)
-        out[name] = (lambda t, a=u0, b=u1, ts=t_step: np.where(np.asarray(t) < ts, a, b))
-    return out
+        return u0 + span if u0 + span <= hi else u0 - span
+    return staggered(model, duration, tenth)
 
 
 def same_start(model: Model, x: np.ndarray, simple: Model) -> np.ndarray:

@@ -643,7 +643,7 @@ class Runner:
                     'commanded_current': self._current}
         rtf = self.cfg.real_time_factor
         snap['sim_time'] = self.sim.t
-        snap['fidelity'] = self.sim.fidelity
+        snap['fidelity'], snap['step_check'] = self.sim.fidelity, self.sim.step_check
         with self._cv:
             costs = np.array(self._costs)
         snap['step_budget'] = self.step_budget

@@ -469,7 +469,7 @@ class Simulator:
         self.bounded = (fixed_step, bounded_steps(dt, fixed_step, max_steps)) if fixed_step \
             else (0.0, 0)
         #: The check of that step (a ``fixed_step.FixedStep``, set by who checked it).
-        self.fixed_step = None
+        self.step_check = None
         self.model = PumpModel(plant, model) if isinstance(plant, Params) else plant
         if not self.steps_external:
             refuse_external(self.model, 'Simulator')

@@ -12,7 +12,7 @@ import pytest
 
 from hydropump_ctrl.cli import main
 from hydropump_ctrl.experiments.circuit_loop import hydromechanical
-from hydropump_sim import reduction
+from hydropump_sim import invariants, reduction
 from hydropump_sim.circuit import load_circuit
 from hydropump_sim.errors import InputError
 from hydropump_sim.plant_model import PumpModel
@@ -50,6 +50,8 @@ def test_simplified_circuit_is_within_its_stated_bound_of_an_independent_fine_ru
     ins = reduction.test_inputs(three_loads, 1.0)
     ref = simulate(three_loads, 1.0, ins, x0=eq.x, method='radau', rtol=1e-6)
     run = simulate(simple, 1.0, ins, x0=same_start(three_loads, eq.x, simple))
+    broken = invariants.check(simple, run.t, run.y, run.u)   # the simplified physics too
+    assert not broken, invariants.report(broken)
     width = int(round(1.0 / fid.bandwidth / float(ref.t[1] - ref.t[0])))
     for name, stated in fid.error.items():
         a, b = averaged(ref[name], width), averaged(run[name], width)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from hydropump_ctrl.experiments.circuit_loop import hydromechanical
-from hydropump_sim import fixed_step
+from hydropump_sim import fixed_step, invariants
 from hydropump_sim.circuit import load_circuit
 from hydropump_sim.errors import InputError
 from hydropump_sim.plant_model import PumpModel
@@ -75,6 +75,9 @@ def test_a_step_too_large_for_a_circuit_is_refused_naming_the_one_that_holds():
     sim.x, sim.t, sim.steps = x0.copy(), 0.0, 0
     y, work = stepped(sim, model, U)
     assert np.all(np.isfinite(y)) and work.max() <= 16
+    # The circuit's physics holds over the whole run, at the switches too.
+    broken = invariants.check(model, np.arange(1, 1001) * DT, y, U)
+    assert not broken, invariants.report(broken)
     # Nothing controls the error where a valve slams and a shuttle or a seat switches: the
     # fixed step may miss there for a few milliseconds (up to a fifth of a signal's range
     # seen), and must be back within 1 % 50 ms after each switch.

@@ -139,7 +139,7 @@ class FmuSimulator:
 
     #: It steps as the FMU does: no simplified fidelity, no fixed step of the suite's.
     fidelity = None
-    fixed_step = None
+    step_check = None
 
     def __init__(self, path, params, dt: float = 1.0e-3):
         info = read_fmu(path)

@@ -312,17 +312,17 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
             from hydropump_ctrl.fmi.loads import CoupledSimulator
             return CoupledSimulator(circuit, self.cfg.dt)
         circuit, fid = with_fidelity(circuit, name, bandwidth,
-                                     self._controller_bandwidth(circuit, name, bandwidth))
+                                     self._controller_bandwidth(circuit, name))
         step, most = self.cfg.solver.fixed_step, self.cfg.solver.max_steps
         checked = fixed_step.check(circuit, self.cfg.dt, step, most) if step else None
         sim = Simulator(circuit, self.cfg.dt, fixed_step=step, max_steps=most)
-        sim.fidelity, sim.fixed_step = fid, checked
+        sim.fidelity, sim.step_check = fid, checked
         if checked is not None:
             self.get_logger().info(checked.text())
         return sim
 
     @staticmethod
-    def _controller_bandwidth(circuit, name: str, bandwidth: float) -> float | None:
+    def _controller_bandwidth(circuit, name: str) -> float | None:
         """The bandwidth [Hz] of the controller designed for the circuit (either mode), which
         the simplified fidelity must not reach into; ``None`` where none is designed."""
         if name == 'fine':
@@ -589,7 +589,7 @@ class SimulatorNode(bridge.ExplainedParameters, Node):
                                             for k, v in values.items()])
         ok, warn, error = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
         bad = stats['nan_commands'] or stats['clamped_commands'] or d['watchdog']
-        fid, fixed = d['fidelity'], self.runner.sim.fixed_step
+        fid, fixed = d['fidelity'], d['step_check']
         pending = self._fidelity[0] != (fid.name if fid is not None else 'fine')
         arr = DiagnosticArray(status=[
             status('plant', warn if any(flags.values()) else ok,
