@@ -85,3 +85,30 @@ def test_fig6_draws_the_residual_when_a_bucket_holds_one_sample(n):
     xb = x[:m].reshape(-1, k)
     assert np.allclose(lows, xb.min(axis=1)) and np.allclose(highs, xb.max(axis=1))
     assert np.ptp(lows) > 1.5        # the sine's swing is drawn, not a flat line
+
+
+def test_step_peaks_follow_scipys_find_peaks_rule():
+    """``signals.peaks`` stands in for ``scipy.signal.find_peaks(height=, distance=)`` (whose
+    import costs every calibration half a second): scipy is the truth, on random records
+    with flat tops and peaks closer than the distance (no two peaks of equal height, where
+    the rule leaves the choice open)."""
+    from scipy.signal import find_peaks
+
+    from hydropump_ctrl.ident.signals import find_steps, peaks
+    rng = np.random.default_rng(3)
+    for k in range(600):
+        n = int(rng.integers(3, 400))
+        x = rng.standard_normal(n)
+        if k % 2:
+            r = int(rng.integers(2, 6))
+            x = np.repeat(rng.standard_normal(n // r + 1), r)[:n]
+        height, distance = 0.5 * rng.standard_normal(), int(rng.integers(1, 40))
+        want = find_peaks(x, height=height, distance=distance)[0]
+        assert np.array_equal(np.sort(peaks(x, height, distance)), want), (k, x, height)
+    # A dithered staircase: its steps where they were made, with their signs.
+    dt = 1e-3
+    u = np.repeat([0.3, 0.6, 0.4, 0.7], 500) + 0.01 * np.sin(2 * np.pi * 150 * dt
+                                                              * np.arange(2000))
+    idx, size = find_steps(u, dt)
+    assert np.abs(idx - [500, 1000, 1500]).max() <= 1
+    assert np.allclose(size, [0.3, -0.2, 0.3], atol=0.02)

@@ -189,6 +189,15 @@ def _shifted(y: np.ndarray, m: int, step: int = 1) -> tuple[np.ndarray, ...]:
             -0.5 * p0 + 0.5 * p2, p1)
 
 
+def _convolve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The full linear convolution of ``a`` and ``b`` by FFT (``scipy.signal.fftconvolve``'s
+    sum, without that module's half second of import on every calibration)."""
+    from scipy import fft
+    n = a.size + b.size - 1
+    size = fft.next_fast_len(n, real=True)
+    return fft.irfft(fft.rfft(a, size) * fft.rfft(b, size), size)[:n]
+
+
 def _best_shift(parts, oks, lo_k: int, hi_k: int, offset: bool) -> int:
     """The whole-sample shift (of the model grid) in ``[lo_k, hi_k]`` with the least
     weighted sum of squares.
@@ -197,7 +206,6 @@ def _best_shift(parts, oks, lo_k: int, hi_k: int, offset: bool) -> int:
     model grid) with the model, clamped at its ends: all shifts at once by FFT
     (``sum r^2 = sum y^2 - 2 sum y m + sum m^2`` and ``sum r``, per shift). Only the best
     shift is kept, and :func:`best_delay` refines around it exactly."""
-    from scipy.signal import fftconvolve
     ks = np.arange(lo_k, hi_k + 1)
     left = max(hi_k, 0)
     sse = np.zeros(ks.size)
@@ -223,8 +231,7 @@ def _best_shift(parts, oks, lo_k: int, hi_k: int, offset: bool) -> int:
 
         def corr(a, b, span=span):
             # sum_j a[j] b[j - k + left] for every k in ks.
-            full = fftconvolve(b, a[::-1], mode='full')
-            return full[span - 1 + left - ks]
+            return _convolve(b, a[::-1])[span - 1 + left - ks]
         yy = corr(W, ext * ext)
         ym = corr(M, ext)
         y1 = corr(W, ext)
