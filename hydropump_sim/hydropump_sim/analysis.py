@@ -10,7 +10,7 @@ import control
 import numpy as np
 
 from . import linear, paper
-from .files import save_figure
+from .files import pyplot, save_figure
 from .metrics import fast_fraction, step_figures
 from .params import Params
 from .scaling import current_for_displacement, flow_percent
@@ -203,9 +203,7 @@ def format_report(params: Params, T: float = 0.05) -> tuple[str, dict]:
 
 def plot_steps(steps: dict, params: Params, path) -> None:
     """Step responses up and down, fine vs simplified vs linear, in % of ``V_p f_p``."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), sharey=False)
     styles = {'fine': ('k', '-'), 'simplified': ('tab:blue', '--'),
               'simplified_Kc': ('tab:green', '-.'), 'eq14': ('tab:red', ':'),
@@ -229,9 +227,7 @@ def plot_steps(steps: dict, params: Params, path) -> None:
 def plot_bode(params: Params, path, omega: np.ndarray | None = None, T: float = 0.05) -> None:
     """Bode plot of current to ``q_l``: fine vs simplified vs eqs. 14/15; a line marks the
     control bandwidth ``1/T`` of section IV."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     omega = np.logspace(-0.5, 4.5, 400) if omega is None else omega
     data = bode_set(params, omega)
     f = omega / (2 * np.pi)

@@ -57,6 +57,15 @@ def write_text(path: str | Path, text: str, what: str = 'file') -> Path:
     return Path(path)
 
 
+def pyplot():
+    """``matplotlib.pyplot`` on the Agg backend (no display), imported on first use: half a
+    second that commands which draw nothing do without."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    return plt
+
+
 # The PNG text key under which a figure keeps where its axes are (:func:`axes_boxes`).
 AXES_KEY = 'hydropump:axes'
 

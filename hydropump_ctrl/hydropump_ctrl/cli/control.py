@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-from hydropump_sim.files import save_figure, write_text
+from hydropump_sim.files import pyplot, save_figure, write_text
 from hydropump_sim.params import load_params
 
 from .options import (
@@ -377,9 +377,7 @@ def _load_setup(args):
 def _plot_pair(path: Path, title: str, runs: dict, signal: str, scale: float, unit: str,
                reference, band=None) -> None:
     """EMC and PI side by side: controlled variable, what the controller saw, command."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     fig, axes = plt.subplots(2, len(runs), figsize=(6.5 * len(runs), 6.5), sharex=True,
                              squeeze=False)
     for col, (name, res) in enumerate(runs.items()):

@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 import time
 
-from hydropump_sim.files import save_figure, write_text
+from hydropump_sim.files import pyplot, save_figure, write_text
 
 from .options import add_params_option, float_in, output_file, plant_file, run_dir
 
@@ -86,9 +86,7 @@ def cmd_simulate(args) -> int:
 
 def plot_result(res, params, path: Path) -> None:
     """Current, flows and pressures of a simulation, SI converted to bar and L/min."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     fig, ax = plt.subplots(3, 1, figsize=(9, 7.5), sharex=True)
     ax[0].plot(res.t, res.I_s, 'k')
     ax[0].set_ylabel('I_s [A]')

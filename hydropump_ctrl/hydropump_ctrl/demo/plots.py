@@ -11,16 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hydropump_sim.files import save_figure
+from hydropump_sim.files import pyplot, save_figure
 from hydropump_sim.params import Params
-
-
-def pyplot():
-    """``matplotlib.pyplot`` on the Agg backend (imported on first use: it is slow)."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    return plt
 
 
 def save(plt, fig, path, dpi: int = 100) -> Path:

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from hydropump_sim.files import refuse_foreign, save_figure, write_text
+from hydropump_sim.files import pyplot, refuse_foreign, save_figure, write_text
 
 from .. import provenance
 from .diagnostics import FLAG_TEXT, FopdtFit
@@ -286,13 +286,6 @@ def _zoom(fit: FopdtFit) -> tuple[float, float]:
     return float(t0 - 0.3 * (fit.tau + fit.td) - 0.05), float(t0 + 5 * fit.tau + fit.td)
 
 
-def _pyplot():
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    return plt
-
-
 def _save(plt, fig, path, dpi: int) -> Path:
     try:
         return save_figure(fig, path, dpi=dpi, axes=True)
@@ -301,7 +294,7 @@ def _save(plt, fig, path, dpi: int) -> Path:
 
 
 def _figure(rows: int, height: float):
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(rows, 1, figsize=(8, height), squeeze=False)
     fig.subplots_adjust(left=0.09, right=0.98, top=0.94, bottom=0.08, hspace=0.32)
     return plt, fig, ax[:, 0]
@@ -354,7 +347,7 @@ def plot_fig6(fit: FopdtFit, path) -> Path:
 
 def _grid(n: int, top: bool):
     """Figure with an optional full-width top panel and ``n`` panels in up to 3 columns."""
-    plt = _pyplot()
+    plt = pyplot()
     cols = min(3, n)
     rows = int(math.ceil(n / cols))
     extra = 1 if top else 0

@@ -96,8 +96,7 @@ def _png(fig) -> str:
     fig.tight_layout()      # panels apart: each tornado panel names its own inputs
     buf = io.BytesIO()
     fig.savefig(buf, format='png', dpi=90, bbox_inches='tight')
-    import matplotlib.pyplot as plt
-    plt.close(fig)
+    files.pyplot().close(fig)
     return '<img src="data:image/png;base64,' + base64.b64encode(buf.getvalue()).decode() + '">'
 
 
@@ -111,9 +110,7 @@ PAGE_CSS = ('body{font-family:sans-serif;max-width:1300px;margin:auto;padding:0 
 
 def write_report(sweep: Sweep, table: Path, out: Path) -> Path:
     """``out/report.html`` and ``out/sensitivities.json``."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    plt = files.pyplot()
 
     cols = read_table(table)
     units = cols['__units__']

@@ -89,13 +89,6 @@ def write_params(cal, path, header_lines: Sequence[str] = (), params: Params | N
     return write_text(path, text, 'params file')
 
 
-def _pyplot():
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    return plt
-
-
 def _safe(name: str) -> str:
     return ''.join(c if c.isalnum() or c in '-_' else '_' for c in name)[:60]
 
@@ -125,7 +118,7 @@ def plot_comparison(exp, after: dict, path: Path, before: dict | None = None,
                     title: str = '', labels=('model, start', 'model, calibrated')) -> Path:
     """One recording: per signal, measured, the model before (dashed) and after, and the
     residual beside it."""
-    plt = _pyplot()
+    plt = files.pyplot()
     sigs = list(exp.measured)
     height = 1.9 * len(sigs) + 0.6
     fig, axes = plt.subplots(len(sigs), 2, figsize=(11, height), squeeze=False,
@@ -164,7 +157,7 @@ def plot_comparison(exp, after: dict, path: Path, before: dict | None = None,
 
 
 def plot_correlation(names: Sequence[str], corr: np.ndarray, path: Path) -> Path:
-    plt = _pyplot()
+    plt = files.pyplot()
     n = len(names)
     fig, ax = plt.subplots(figsize=(1.2 * n + 2.5, 1.0 * n + 1.8))
     im = ax.imshow(np.nan_to_num(corr), vmin=-1, vmax=1, cmap='RdBu_r')
