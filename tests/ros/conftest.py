@@ -8,6 +8,18 @@ import pytest
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
 
+def _suite_dds_profile():
+    # The test process publishes as a node of the suite would (a stand-in controller's
+    # commands): with the nodes' writer settings, config/fastdds.xml. Under Fast DDS's own
+    # (a 3 s heartbeat) a sample a starved recorder missed came back seconds late, after the
+    # recorder had taken the silent topic as ended, and the bag lacked the tail.
+    from hydropump_ros.entry import dds_profile
+    dds_profile()
+
+
+_suite_dds_profile()
+
+
 @pytest.fixture(scope='session')
 def ros_domain():
     """A ROS_DOMAIN_ID reserved for this test session (no cross-talk with other runs)."""
