@@ -253,6 +253,47 @@ def test_a_stop_time_the_run_never_reaches_ends_the_bag_where_the_run_stopped(
                                     'stop_time = 1000 s'), told['drain']
 
 
+def test_a_topic_that_stops_before_the_bag_ends_is_named_in_it(tmp_path):
+    """Two periodic topics: /a goes on to the stop instant, /b stops at 50 ms while /clock
+    goes on to 500 ms and its publisher stays in the graph (a publisher that stopped, or one
+    whose missed samples DDS had still to repair when the stop took the silent topic as
+    ended). The bag names /b with the time of its last message, and the log says so; /a,
+    one message short of the stop instant, is not named; nor is a topic whose publisher has
+    left the graph."""
+    class Leaving(Graph):
+        def publishers(self, topic):
+            return 0 if topic == '/c' else 1
+    logs = []
+    cfg = build(RecorderConfig, {'output': str(tmp_path / 'bag'), 'topics': ['/a', '/b', '/c']})
+    rec = Recorder(cfg, ['/a', '/b', '/c'], Leaving(('/a', '/b', '/c')),
+                   log=lambda lvl, txt: logs.append((lvl, txt)))
+    rec.start()
+    for k in range(500):
+        src = 1000 * (k + 1)
+        rec.clock(_clock(k * MS), {'source_timestamp': src})
+        for topic in ('/a',) + (('/b', '/c') if k <= 50 else ()):
+            if topic == '/a' and k == 499:
+                continue                         # one period short of the stop: its edge
+            rec.message(topic, False, _float(), {'source_timestamp': src + 1,
+                                                 'publication_sequence_number': k + 1})
+        rec.advance(1)
+    assert rec.request_stop(1.0, until_ns=499 * MS)
+    path, _ = rec.finish_stop()
+    told = yaml.safe_load((path / 'metadata.yaml').read_text())[
+        'rosbag2_bagfile_information']['custom_data']
+    assert {k: v for k, v in told.items() if k.startswith('ended.')} == {'ended./b': '0.050000'}
+    assert told['messages_lost'] == '0'
+    (line,) = [t for lvl, t in logs if 'stopped before the bag ended' in t]
+    assert '/b at t = 0.05 s' in line and '/a' not in line and '/c' not in line
+    # A reader of the bag is told too, for the topics it reads.
+    from hydropump_ctrl.bag.reader import open_bag
+    assert [n for n in open_bag(path, ['/a', '/b'])[0].notes if 'stop' in n] == [
+        '/b: its recorder saw it stop at t = 0.050000 s, before the bag ended, its publisher '
+        'still in the graph (a publisher that stopped, or samples DDS had yet to repair)']
+    assert not [n for n in open_bag(path, ['/a'])[0].notes if 'stop' in n]
+    assert [n[:3] for n in open_bag(path, None)[0].notes if 'stop' in n] == ['/b:']
+
+
 # ---- a write that fails ----------------------------------------------------------------------
 
 _FULL_DISK = """

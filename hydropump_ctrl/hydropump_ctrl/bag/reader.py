@@ -171,7 +171,7 @@ def open_bag(path: Path, want: list[str] | None) -> tuple[Bag, dict]:
                 raise BagReadError(f'{path}: the storage files of metadata.yaml are missing: '
                                f'{", ".join(missing)}')
             notes = [f'storage files missing: {", ".join(missing)}'] if missing else []
-            return _open_files(path, present, want, notes)
+            return _open_files(path, present, want, notes + _ended(info, want))
         return _open_files(path, files, want, [why])
     suffix = path.suffix.lower()
     if suffix in ('.mcap', '.db3'):
@@ -182,6 +182,19 @@ def open_bag(path: Path, want: list[str] | None) -> tuple[Bag, dict]:
     if head.startswith(MCAP_MAGIC) or head.startswith(SQLITE_MAGIC):
         raise _not_a_bag(path, 'an MCAP or SQLite file needs the .mcap or .db3 suffix')
     raise _not_a_bag(path)
+
+
+def _ended(info: dict, want: list[str] | None) -> list[str]:
+    """A note per wanted topic (all with ``want`` None) that its recorder saw stop before the
+    bag's end (``custom_data`` ``ended.<topic>``)."""
+    cd = info.get('custom_data')
+    if not isinstance(cd, dict):
+        return []
+    ended = {str(k).removeprefix('ended.'): v for k, v in cd.items()
+             if str(k).startswith('ended.')}
+    return [f'{topic}: its recorder saw it stop at t = {at} s, before the bag ended, its '
+            'publisher still in the graph (a publisher that stopped, or samples DDS had yet '
+            'to repair)' for topic, at in ended.items() if want is None or topic in want]
 
 
 def _open_compressed(path: Path, want) -> tuple[Bag, dict]:

@@ -248,6 +248,18 @@ class Sequencer:
                 out[t.name] = mark
         return out
 
+    def ended(self, until_ns: int, periods: int, span_ns: int) -> dict[str, int]:
+        """The periodic topics whose latest message lies more than ``periods`` of their
+        periods and ``span_ns`` before ``until_ns`` (a bag's end), with its log time [ns]."""
+        out: dict[str, int] = {}
+        for t in self._topics.values():
+            period = self.period(t.name)
+            if t.name in self._sparse or t.mark is None or not period:
+                continue
+            if until_ns - t.mark > max(periods * period, span_ns):
+                out[t.name] = t.mark
+        return out
+
     def period(self, topic: str) -> int | None:
         """The period [ns] of ``topic``'s latest messages (the median step of their log
         times), or ``None`` with fewer than two."""

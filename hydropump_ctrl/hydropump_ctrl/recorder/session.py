@@ -29,7 +29,10 @@
   and ``events.<kind>`` with ``events.<kind>.first`` (simulation time [s] of the first) for
   every event of the ``events`` topic (``diagnostic_msgs/DiagnosticArray``, one status per
   event, named by its kind): the controller's safe-current engagements and the simulator's
-  lock-step timeouts. A fit reads these (:mod:`hydropump_ctrl.ident.plausibility`).
+  lock-step timeouts; ``ended.<topic>`` (simulation time [s] of its last message) for a
+  periodic topic that stopped well before the bag's end while its publisher was still in
+  the graph (:meth:`Session.ended`). A fit reads these (:mod:`hydropump_ctrl.ident.plausibility`;
+  an ended topic is a note of the reader, :mod:`hydropump_ctrl.bag.reader`).
 - **A write that fails** (disk full, a file-size limit, an I/O error): the writer closes the
   bag with the chunks written before (:class:`~.bag.BagWriteError`); the recorder records
   nothing more, and :attr:`Recorder.failed` says why (the node reports it and exits).
@@ -215,6 +218,23 @@ class Session:
                 self.estimated[topic] = n
                 self.lost[topic] = self.lost.get(topic, 0) + n
 
+    def ended(self) -> dict[str, int]:
+        """The topics that stopped well before the bag's end (its stop instant or its latest
+        /clock, the earlier) while their publisher is still in the graph, with the log time [ns]
+        of their last message. Either the publisher stopped, or DDS had still to repair
+        samples the recorder missed when the stop took the silent topic as ended (a
+        publisher with Fast DDS's 3 s heartbeat, docs/ros.md): the bag says so, either way."""
+        seq = self.seq
+        if seq is None or seq.mode != 'sim':
+            return {}
+        # No later than the latest /clock taken: nothing is due after it.
+        ends = [t for t in (self.stop_at, seq.time.latest) if t is not None and t >= 0]
+        if not ends:
+            return {}
+        end = min(ends)
+        return {t: m for t, m in seq.ended(end, ENDED_PERIODS, ENDED_SPAN).items()
+                if self.rec.graph.publishers(t) > 0}
+
     def untimed(self) -> int:
         """Drop the messages that came before any ``/clock`` in a graph that has one (they
         cannot be placed in simulation time); count those published before the stop as
@@ -246,6 +266,8 @@ class Session:
         cd = self.writer.custom_data
         if self.seq is not None:
             self.write(self.seq.drain(keep))
+            for topic, mark in self.ended().items():
+                cd[f'ended.{topic}'] = f'{mark * 1e-9:.6f}'
             cd.update({
                 'time_base': 'simulation' if self.seq.mode == 'sim' else 'wall',
                 'messages_late': str(self.seq.late)})
@@ -277,6 +299,11 @@ QUIET = 0.3
 # run as stopped short of it (paused earlier, ended): the bag ends at its latest /clock. Far
 # longer than QUIET: a lock-step run waiting for a slow controller is not a stopped one.
 SHORT_OF_STOP_TIME = 2.0
+# A topic whose last message lies this many of its periods, and this much simulation time
+# [ns], before the bag's end has stopped (Session.ended): a message or two short of a stop is
+# its edge, not an end.
+ENDED_PERIODS = 10
+ENDED_SPAN = 100_000_000
 # s: a pass of the take loop later than this after the previous one is a stall of the
 # recorder; silence counts at most this much of it.
 STALL = 0.05
@@ -366,6 +393,14 @@ class Recorder:
         path = s.close(reason, drain, keep)
         lost = sum(s.lost.values())
         events = {k: n for k, (n, _) in s.events.items() if n}
+        ended = {k.removeprefix('ended.'): v for k, v in s.writer.custom_data.items()
+                 if k.startswith('ended.')}
+        if ended:
+            self._log('warn', 'these topics stopped before the bag ended, their publishers '
+                      'still in the graph: ' + ', '.join(f'{t} at t = {float(v):g} s'
+                                                         for t, v in ended.items())
+                      + ' (a publisher that stopped, or one whose missed samples DDS had yet '
+                      'to repair: docs/ros.md)')
         self._log('warn' if lost or events else 'info',
                   f'closed {path.resolve()}: {s.messages} messages'
                   + (f', {lost} LOST' + (' (the drain was cut at its bound)'
