@@ -117,16 +117,8 @@ def test_the_crossover_is_the_start_up_against_the_time_saved():
     assert not cluster_pays(0.99 * s, 4, start=2.0) and cluster_pays(1.01 * s, 4, start=2.0)
 
 
-def _short_connect(monkeypatch):
-    # An address nothing answers is refused once the connect timeout runs out: the refusal
-    # is what these tests judge, so a short timeout spares them its 5 s a try.
-    from hydropump_ctrl import batch
-    monkeypatch.setattr(batch, 'CONNECT_TIMEOUT', 0.5)
-
-
-def test_open_executor_chooses_by_address_and_worker_count(monkeypatch):
+def test_open_executor_chooses_by_address_and_worker_count(monkeypatch, short_connect):
     monkeypatch.delenv('DASK_SCHEDULER_ADDRESS', raising=False)
-    _short_connect(monkeypatch)
     for workers in (None, 0):
         ex = open_executor(None, workers, threads=3)
         assert isinstance(ex, InProcess) and ex.workers == 3

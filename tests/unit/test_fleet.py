@@ -205,9 +205,7 @@ def test_bad_input_is_one_line_before_any_calibration(fleet, tmp_path, capsys, c
 
 
 def test_an_unreachable_scheduler_and_an_unwritable_report_are_one_line(fleet, tmp_path,
-                                                                       capsys, monkeypatch):
-    from .test_batch import _short_connect
-    _short_connect(monkeypatch)
+                                                                       capsys, short_connect):
     root, _ = fleet
     (tmp_path / 'file').write_text('')
     code, _, err = _cli(capsys, *_fleet_args(root, tmp_path / 'file' / 'sub'))

@@ -209,9 +209,7 @@ def test_bad_specs_give_one_line_and_exit_2(case, tmp_path, capsys):
     assert not (tmp_path / 'o').exists()     # refused before any run
 
 
-def test_unwritable_out_and_unreachable_scheduler(tmp_path, capsys, monkeypatch):
-    from .test_batch import _short_connect
-    _short_connect(monkeypatch)
+def test_unwritable_out_and_unreachable_scheduler(tmp_path, capsys, short_connect):
     (tmp_path / 'file').write_text('')
     code, err = _cli(capsys, CONFIG / 'sweeps' / 'tolerance.yaml', '--out',
                      tmp_path / 'file' / 'sub', '--no-progress')
