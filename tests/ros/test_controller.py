@@ -69,17 +69,25 @@ def test_flow_step_end_to_end_in_lock_step_with_the_bench_profile(nodes, test_no
     """30 -> 70 % flow step through the real nodes, bench sensors (55 ms flow delay, noise,
     quantisation, dither): the targets of docs/control.md on the true pump flow (from the plate
     stroke, averaged over the dither period as the paper filters it)."""
+    from diagnostic_msgs.msg import DiagnosticArray
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
     p = load_params(PUMP_YAML)
     q30, q70 = 0.3 * p.Q_max, 0.7 * p.Q_max
+    # The step is made at a pause of the simulator (pause_at), as the orchestration makes
+    # its changes: published during the run, the reference reached the controller whenever
+    # this process got to it, up to 0.3 s of simulation after the instant taken as the step.
     nodes.start('simulator', '--params-file', str(ROOT / 'config' / 'bench.yaml'),
                 '-p', 'lock_step:=true', '-p', 'lock_step_timeout:=30.0',
-                '-p', 'start_paused:=true', '-p', 'initial_current:=0.38')
+                '-p', 'start_paused:=true', '-p', 'initial_current:=0.38',
+                '-p', 'pause_at:=1.0')
     nodes.start('controller', '-p', 'use_sim_time:=true', '-p', 'autostart:=true',
                 '-p', f'reference.flow:={q30}')
-    js = []
+    js, diag = [], []
     test_node.create_subscription(JointState, 'joint_states', js.append, 5000)
+    test_node.create_subscription(DiagnosticArray, '/diagnostics',
+                                  lambda m: diag.extend(s for s in m.status
+                                                        if s.name == 'controller'), 100)
     ref = test_node.create_publisher(Float64, 'controller/reference', 10)
     wait_for_subscriber(test_node, 'controller/reference')
     wait_for_publisher(test_node, 'joint_states')
@@ -92,6 +100,13 @@ def test_flow_step_end_to_end_in_lock_step_with_the_bench_profile(nodes, test_no
     spin_until(test_node, lambda: now() >= 1.0, 120, '1 s of settling at 30 %')
     t_step = now()
     ref.publish(Float64(data=q70))
+
+    def taken():
+        values = {kv.key: kv.value for kv in diag[-1].values} if diag else {}
+        return values.get('reference') not in (None, 'None') and \
+            float(values['reference']) == pytest.approx(q70)
+    spin_until(test_node, taken, 30, 'the controller to take the reference')
+    _unpause(test_node)
     spin_until(test_node, lambda: now() >= t_step + 1.0, 120, 'the step response')
     t = np.array([m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in js])
     x_a = np.array([m.position[1] for m in js])
