@@ -107,6 +107,7 @@ class Session:
         self.events: dict[str, list] = {name: [0, None] for name in rec.event_kinds}
         self.last_src: dict[str, int] = {}      # topic -> its latest source timestamp [ns]
         self.counted: dict[str, int] = {}       # topic -> latest log time counted as lost
+        self.ended_at: dict[str, int] = {}      # topic -> its last log time, if it ended early
         self._channels = False                  # the first channels registered
 
     @property
@@ -266,7 +267,8 @@ class Session:
         cd = self.writer.custom_data
         if self.seq is not None:
             self.write(self.seq.drain(keep))
-            for topic, mark in self.ended().items():
+            self.ended_at = self.ended()
+            for topic, mark in self.ended_at.items():
                 cd[f'ended.{topic}'] = f'{mark * 1e-9:.6f}'
             cd.update({
                 'time_base': 'simulation' if self.seq.mode == 'sim' else 'wall',
@@ -393,12 +395,10 @@ class Recorder:
         path = s.close(reason, drain, keep)
         lost = sum(s.lost.values())
         events = {k: n for k, (n, _) in s.events.items() if n}
-        ended = {k.removeprefix('ended.'): v for k, v in s.writer.custom_data.items()
-                 if k.startswith('ended.')}
-        if ended:
+        if s.ended_at:
             self._log('warn', 'these topics stopped before the bag ended, their publishers '
-                      'still in the graph: ' + ', '.join(f'{t} at t = {float(v):g} s'
-                                                         for t, v in ended.items())
+                      'still in the graph: ' + ', '.join(f'{t} at t = {ns * 1e-9:g} s'
+                                                         for t, ns in s.ended_at.items())
                       + ' (a publisher that stopped, or one whose missed samples DDS had yet '
                       'to repair: docs/ros.md)')
         self._log('warn' if lost or events else 'info',
